@@ -1,0 +1,1 @@
+"""Core: conventions, errors, parameters, protocols, registry, specs, I/O, cache, pipeline."""

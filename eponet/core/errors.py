@@ -1,0 +1,77 @@
+"""Typed errors: every one carries what it is about and reads as one line."""
+
+from __future__ import annotations
+
+__all__ = [
+    "EponetError",
+    "SpecError",
+    "InputError",
+    "PluginNotFound",
+    "DuplicatePlugin",
+    "PluginLoadError",
+    "StageError",
+    "MissingWeights",
+    "OutputError",
+]
+
+
+class EponetError(Exception):
+    """Base class. ``exit_code`` is what the CLI returns: 2 for bad spec/input, 1 for run failures."""
+
+    exit_code = 1
+
+
+class SpecError(EponetError):
+    """One or more problems in a pipeline spec, each with its YAML path."""
+
+    exit_code = 2
+
+    def __init__(self, problems: list[str] | str, file: str | None = None):
+        self.problems = [problems] if isinstance(problems, str) else list(problems)
+        self.file = file
+        where = f"{file}: " if file else ""
+        if len(self.problems) == 1:
+            msg = where + self.problems[0]
+        else:
+            msg = where + f"{len(self.problems)} problems: " + "; ".join(self.problems)
+        super().__init__(msg)
+
+
+class InputError(EponetError):
+    """Unreadable, missing or inconsistent input (frames, videos, flow files, masks)."""
+
+    exit_code = 2
+
+
+class PluginNotFound(SpecError):
+    """An unknown plugin name; the message lists what exists and suggests the nearest name."""
+
+
+class DuplicatePlugin(EponetError):
+    """Two plugins registered the same (kind, name)."""
+
+    exit_code = 2
+
+
+class PluginLoadError(EponetError):
+    """A third-party plugin package failed to import."""
+
+    exit_code = 2
+
+
+class StageError(EponetError):
+    """A stage failed while running (names the stage, plugin and sequence/frame)."""
+
+    exit_code = 1
+
+
+class MissingWeights(EponetError):
+    """Weights file missing, unreadable or failing its checksum."""
+
+    exit_code = 2
+
+
+class OutputError(EponetError):
+    """The output folder cannot be written."""
+
+    exit_code = 2

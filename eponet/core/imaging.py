@@ -1,0 +1,55 @@
+"""Resizing of dense maps between the processing and input resolutions, and visualisations."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = ["resize_flow", "resize_map", "flow_to_color", "heat_map", "overlay_mask"]
+
+
+def resize_flow(flow: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Resize flow ``(H, W, 2)`` to ``shape`` ``(h, w)``, scaling the vectors with the grid (bilinear)."""
+    height, width = flow.shape[:2]
+    if (height, width) == tuple(shape):
+        return flow.astype(np.float32, copy=False)
+    out = cv2.resize(flow, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    out[..., 0] *= shape[1] / width
+    out[..., 1] *= shape[0] / height
+    return out.astype(np.float32, copy=False)
+
+
+def resize_map(values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Bilinear resize of a float map ``(H, W)`` to ``shape`` ``(h, w)``."""
+    if values.shape[:2] == tuple(shape):
+        return values.astype(np.float32, copy=False)
+    return cv2.resize(values.astype(np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+
+
+def flow_to_color(flow: np.ndarray, max_magnitude: float | None = None) -> np.ndarray:
+    """Colour-code flow ``(H, W, 2)`` as uint8 RGB (hue = direction, saturation = magnitude)."""
+    dx, dy = flow[..., 0], flow[..., 1]
+    magnitude, angle = cv2.cartToPolar(dx.astype(np.float32), dy.astype(np.float32), angleInDegrees=True)
+    scale = max_magnitude or max(float(np.percentile(magnitude, 99)), 1e-6)
+    hsv = np.empty(flow.shape[:2] + (3,), np.uint8)
+    hsv[..., 0] = (angle / 2).astype(np.uint8)
+    hsv[..., 1] = np.clip(magnitude / scale * 255, 0, 255).astype(np.uint8)
+    hsv[..., 2] = 255
+    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
+
+
+def heat_map(values: np.ndarray, vmax: float | None = None) -> np.ndarray:
+    """uint8 RGB heat map (inferno-like, OpenCV's INFERNO) of a non-negative map ``(H, W)``."""
+    top = vmax if vmax is not None else max(float(np.percentile(values, 99)), 1e-6)
+    scaled = np.clip(np.nan_to_num(values) / top * 255, 0, 255).astype(np.uint8)
+    return cv2.cvtColor(cv2.applyColorMap(scaled, cv2.COLORMAP_INFERNO), cv2.COLOR_BGR2RGB)
+
+
+def overlay_mask(frame: np.ndarray, mask: np.ndarray, color=(255, 40, 40), alpha: float = 0.45) -> np.ndarray:
+    """Frame ``(H, W, 3)`` RGB with the mask tinted and its contour drawn."""
+    out = frame.copy()
+    fg = mask.astype(bool)
+    out[fg] = (out[fg] * (1 - alpha) + np.array(color) * alpha).astype(np.uint8)
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    cv2.drawContours(out, contours, -1, (255, 255, 0), thickness=max(1, frame.shape[0] // 240))
+    return out

@@ -1,0 +1,152 @@
+"""Input discovery and loading: a folder of frames, a video file, or a DAVIS-layout root."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .errors import InputError
+from .io import IMAGE_SUFFIXES, VIDEO_SUFFIXES, list_images, natural_key, read_image
+from .registry import nearest
+from .types import MIN_FRAMES, Video
+
+__all__ = ["SequenceSource", "discover_sequences", "load_video", "processing_size"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SequenceSource:
+    """Where one sequence's frames come from: image ``files`` or one ``video`` file."""
+
+    name: str
+    files: list[Path] | None = None
+    video: Path | None = None
+    size: tuple[int, int] | None = None  # (H, W) of the input frames
+    count: int = 0
+
+    @property
+    def stems(self) -> list[str]:
+        if self.files is not None:
+            return [f.stem for f in self.files]
+        return [f"{t:05d}" for t in range(self.count)]
+
+
+def processing_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
+    """Processing ``(H, W)`` for input ``size`` ``(H, W)`` and ``scale`` (at least 16 px a side)."""
+    return max(16, int(round(size[0] * scale))), max(16, int(round(size[1] * scale)))
+
+
+def discover_sequences(
+    path: Path, *, sequences: list[str] | None = None, resolution: str = "480p", max_frames: int | None = None
+) -> list[SequenceSource]:
+    """Find the sequences under ``path`` and check them (frame count, readable headers, equal sizes)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"input.path: {path} does not exist")
+    if path.is_file():
+        if sequences:
+            raise InputError(f"input.sequences: only a DAVIS-layout root has sequences; {path} is a single video")
+        return [_check_video(path, max_frames)]
+    if (path / "JPEGImages").is_dir():
+        root = path / "JPEGImages" / resolution
+        if not root.is_dir():
+            found = sorted(p.name for p in (path / "JPEGImages").iterdir() if p.is_dir())
+            raise InputError(f"input.resolution: {root} does not exist; resolutions here: {', '.join(found) or 'none'}")
+        available = sorted((p.name for p in root.iterdir() if p.is_dir()), key=natural_key)
+        names = sequences or available
+        for name in names:
+            if name not in available:
+                hint = nearest(name, available)
+                raise InputError(
+                    f"input.sequences: no sequence {name!r} in {root}{f' (did you mean {hint!r}?)' if hint else ''}"
+                )
+        if not names:
+            raise InputError(f"input.path: {root} holds no sequence folders")
+        return [_check_frames(root / name, name, max_frames) for name in names]
+    if sequences:
+        raise InputError(f"input.sequences: only a DAVIS-layout root (with JPEGImages/) has sequences; {path} is a folder of frames")
+    return [_check_frames(path, path.name, max_frames)]
+
+
+def _check_frames(folder: Path, name: str, max_frames: int | None) -> SequenceSource:
+    from PIL import Image, UnidentifiedImageError
+
+    files = list_images(folder)
+    if not files:
+        raise InputError(f"{folder}: empty folder, expected frames ({', '.join(IMAGE_SUFFIXES[:2])} ...)")
+    files = files[:max_frames] if max_frames else files
+    if len(files) < MIN_FRAMES:
+        raise InputError(f"{folder}: {len(files)} frame(s), the pipeline needs at least {MIN_FRAMES} (triplets)")
+    size = None
+    for file in files:
+        try:
+            with Image.open(file) as image:
+                width, height = image.size
+        except (OSError, UnidentifiedImageError):
+            raise InputError(f"{file}: cannot read image (not an image or corrupt)") from None
+        if size is None:
+            size = (height, width)
+        elif (height, width) != size:
+            raise InputError(f"{file}: frame is {width}x{height} but the first frame {files[0].name} is {size[1]}x{size[0]}")
+    return SequenceSource(name=name, files=files, size=size, count=len(files))
+
+
+def _check_video(path: Path, max_frames: int | None) -> SequenceSource:
+    if path.suffix.lower() in IMAGE_SUFFIXES:
+        raise InputError(f"{path}: a single image; input.path must be a video, a folder of frames or a DAVIS root")
+    capture = cv2.VideoCapture(str(path))
+    try:
+        ok, frame = capture.read() if capture.isOpened() else (False, None)
+        if not ok or frame is None:
+            kind = "video" if path.suffix.lower() in VIDEO_SUFFIXES else "file"
+            raise InputError(f"{path}: not a readable video ({kind} could not be decoded by OpenCV)")
+        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+    finally:
+        capture.release()
+    if max_frames:
+        count = min(count, max_frames) if count > 0 else max_frames
+    if 0 < count < MIN_FRAMES:
+        raise InputError(f"{path}: {count} frame(s), the pipeline needs at least {MIN_FRAMES} (triplets)")
+    return SequenceSource(name=path.stem, video=path, size=frame.shape[:2], count=count)
+
+
+def load_video(source: SequenceSource, *, scale: float, max_frames: int | None = None, keep_full: bool = True) -> Video:
+    """Decode a sequence; ``frames`` are resized to the processing resolution (``scale``)."""
+    if source.files is not None:
+        full = [read_image(f) for f in source.files]
+        stems = [f.stem for f in source.files]
+        sources = [str(f) for f in source.files]
+    else:
+        full = []
+        capture = cv2.VideoCapture(str(source.video))
+        try:
+            while max_frames is None or len(full) < max_frames:
+                ok, frame = capture.read()
+                if not ok:
+                    break
+                full.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
+        finally:
+            capture.release()
+        if len(full) < MIN_FRAMES:
+            raise InputError(f"{source.video}: {len(full)} decodable frame(s), the pipeline needs at least {MIN_FRAMES}")
+        stems = [f"{t:05d}" for t in range(len(full))]
+        sources = [str(source.video)]
+    size = full[0].shape[:2]
+    height, width = processing_size(size, scale)
+    if (height, width) == size:
+        frames = np.stack(full)
+    else:
+        frames = np.stack([cv2.resize(f, (width, height), interpolation=cv2.INTER_AREA) for f in full])
+    return Video(
+        name=source.name,
+        frames=frames,
+        stems=stems,
+        size=(int(size[0]), int(size[1])),
+        sources=sources,
+        full_frames=np.stack(full) if keep_full else None,
+    )

@@ -1,0 +1,30 @@
+"""Motion images: the (dx, dy, ED) input of the motion network, normalised by documented constants."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .types import FlowPair
+
+__all__ = ["FLOW_SCALE", "motion_images", "frame_flow"]
+
+#: Flow channels are divided by this many pixels *of the processing resolution* (at the paper's 427x240,
+#: a displacement of 20 px, i.e. ~5% of the width, becomes 1.0). Values are not clipped.
+FLOW_SCALE = 20.0
+
+
+def frame_flow(flow: FlowPair) -> np.ndarray:
+    """Per-frame motion ``(F, H, W, 2)``: ``forward[t]`` for t < F-1 and, for the last frame (which has no
+    forward flow), the negated backward flow of the last pair, which lives on the last frame's grid (the
+    original code reused frame F-2's flow there, on the wrong grid)."""
+    return np.concatenate([flow.forward, -flow.backward[-1:]], axis=0)
+
+
+def motion_images(flow: FlowPair, ed_normalised: np.ndarray) -> np.ndarray:
+    """Stack ``(dx / FLOW_SCALE, dy / FLOW_SCALE, ED_normalised)`` into float32 ``(F, 3, H, W)``.
+
+    ``ed_normalised`` is the per-video normalised ED ``(F, H, W)`` (see ``eponet.geometry.normalise_ed``).
+    Channel order is (dx, dy, ED) (the original code stored (dy, dx, ED) as lossy JPEGs).
+    """
+    motion = frame_flow(flow) / FLOW_SCALE
+    return np.concatenate([motion.transpose(0, 3, 1, 2), ed_normalised[:, None]], axis=1).astype(np.float32)

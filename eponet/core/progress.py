@@ -1,0 +1,26 @@
+"""Progress bars (tqdm) that stay silent when output is not a terminal or the user asked for quiet."""
+
+from __future__ import annotations
+
+import sys
+from typing import Iterable, TypeVar
+
+__all__ = ["set_quiet", "track"]
+
+T = TypeVar("T")
+_QUIET = False
+
+
+def set_quiet(quiet: bool) -> None:
+    """Silence (or re-enable) every progress bar of this process."""
+    global _QUIET
+    _QUIET = quiet
+
+
+def track(iterable: Iterable[T], desc: str, total: int | None = None) -> Iterable[T]:
+    """Wrap ``iterable`` in a tqdm bar on stderr, unless quiet or stderr is not a TTY."""
+    if _QUIET or not sys.stderr.isatty():
+        return iterable
+    from tqdm import tqdm
+
+    return tqdm(iterable, desc=desc, total=total, leave=False, dynamic_ncols=True)

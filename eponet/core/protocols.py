@@ -1,0 +1,88 @@
+"""One small protocol per stage kind: what goes in, what comes out, with shapes and units.
+
+Conventions (flow direction, x/y order, dtypes) are in :mod:`eponet.core.types`. Every stage is built by its
+plugin's factory from validated keyword parameters; stochastic stages take a seeded
+``numpy.random.Generator`` so that a run is reproducible.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .types import FlowPair, RigidityResult, Trajectories, Video
+
+__all__ = [
+    "KINDS",
+    "FlowEstimator",
+    "TrajectoryBuilder",
+    "RigidityModel",
+    "MotionNet",
+    "AppearanceBackbone",
+    "Fusion",
+    "Refiner",
+    "PROTOCOLS",
+]
+
+#: Stage kinds in pipeline order.
+KINDS = ("flow", "trajectories", "rigidity", "motion_net", "appearance", "fusion", "refiner")
+
+
+@runtime_checkable
+class FlowEstimator(Protocol):
+    def estimate(self, video: Video) -> FlowPair:
+        """Forward and backward flow between consecutive frames of ``video.frames``.
+
+        Returns float32 ``(F-1, H, W, 2)`` fields in pixels of the processing resolution.
+        """
+
+
+@runtime_checkable
+class TrajectoryBuilder(Protocol):
+    def build(self, flow: FlowPair) -> Trajectories:
+        """Dense trajectories covering every pixel of every frame (``labels`` is ``(F, H, W)``)."""
+
+
+@runtime_checkable
+class RigidityModel(Protocol):
+    def score(self, trajectories: Trajectories, flow: FlowPair, rng: np.random.Generator) -> RigidityResult:
+        """Per-pixel epipolar distance (or model residual) maps, float32 ``(F, H, W)`` in pixels."""
+
+
+@runtime_checkable
+class MotionNet(Protocol):
+    def predict(self, motion_images: np.ndarray) -> np.ndarray:
+        """Foreground probability float32 ``(F, H, W)`` in [0, 1] from motion images float32 ``(F, 3, H, W)``
+        holding normalised (dx, dy, ED)."""
+
+
+@runtime_checkable
+class AppearanceBackbone(Protocol):
+    def features(self, video: Video) -> np.ndarray:
+        """Appearance features float32 ``(F, C, h, w)`` of ``video.frames``."""
+
+
+@runtime_checkable
+class Fusion(Protocol):
+    def fuse(self, features: np.ndarray, saliency: np.ndarray) -> np.ndarray:
+        """Foreground probability float32 ``(F, H, W)`` from appearance ``features`` ``(F, C, h, w)`` and the
+        motion ``saliency`` ``(F, H, W)``; the output has the saliency's size."""
+
+
+@runtime_checkable
+class Refiner(Protocol):
+    def refine(self, frames: np.ndarray, probability: np.ndarray) -> np.ndarray:
+        """Binary masks uint8 ``(F, H, W)`` in {0, 1} from RGB ``frames`` uint8 ``(F, H, W, 3)`` and the
+        foreground ``probability`` float32 ``(F, H, W)``, both at the input frame size."""
+
+
+PROTOCOLS = {
+    "flow": FlowEstimator,
+    "trajectories": TrajectoryBuilder,
+    "rigidity": RigidityModel,
+    "motion_net": MotionNet,
+    "appearance": AppearanceBackbone,
+    "fusion": Fusion,
+    "refiner": Refiner,
+}

@@ -1,0 +1,130 @@
+"""Conventions shared by every stage: array layouts, dtypes, units. Defined here and nowhere else.
+
+- Frames are indexed ``t = 0..F-1`` and named after their input file stem (``stems[t]``).
+- Images are uint8 RGB ``(H, W, 3)``; a video is ``(F, H, W, 3)``.
+- A flow field is float32 ``(H, W, 2)`` holding ``(dx, dy)`` in pixels.
+  ``forward[t]`` maps frame t -> t+1 on the grid of frame t; ``backward[t]`` maps frame t+1 -> t on
+  the grid of frame t+1. There are ``F - 1`` of each, stacked as ``(F-1, H, W, 2)``.
+- Points are ``(x, y) = (column, row)``, pixel centres at integer coordinates, 0-based.
+- Masks are uint8 in {0, 1}; probabilities float32 in [0, 1]; epipolar distances float32 in pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = [
+    "FLOW_DTYPE",
+    "MIN_FRAMES",
+    "Video",
+    "FlowPair",
+    "Trajectories",
+    "RigidityResult",
+    "check_shape",
+]
+
+FLOW_DTYPE = np.float32
+#: The fewest frames any pipeline can run on: rigidity works on triplets of frames.
+MIN_FRAMES = 3
+
+
+def check_shape(name: str, array: np.ndarray, dims: list[str | int], dtype=None) -> None:
+    """Raise ``ValueError`` unless ``array`` has the named layout, e.g. ``["F", "H", "W", 2]``.
+
+    String dimensions match any size (but the same letter must match the same size); integers must match
+    exactly.
+    """
+    if array.ndim != len(dims):
+        raise ValueError(f"{name}: expected {len(dims)} dimensions {dims}, got shape {tuple(array.shape)}")
+    seen: dict[str, int] = {}
+    for axis, (want, got) in enumerate(zip(dims, array.shape)):
+        if isinstance(want, int):
+            if got != want:
+                raise ValueError(f"{name}: expected size {want} on axis {axis} of {dims}, got shape {tuple(array.shape)}")
+        elif seen.setdefault(want, got) != got:
+            raise ValueError(f"{name}: axis {axis} ({want}) is {got} but was {seen[want]} before, shape {tuple(array.shape)}")
+    if dtype is not None and array.dtype != dtype:
+        raise ValueError(f"{name}: expected dtype {np.dtype(dtype).name}, got {array.dtype.name}")
+
+
+@dataclass
+class Video:
+    """One input sequence.
+
+    ``frames`` are the frames at the *processing* resolution (after ``input.scale``), uint8 RGB
+    ``(F, H, W, 3)``; ``size`` is the input frame size ``(H0, W0)`` that outputs come back at.
+    ``sources`` are the files the frames were read from (one video file, or one file per frame).
+    """
+
+    name: str
+    frames: np.ndarray
+    stems: list[str]
+    size: tuple[int, int]
+    sources: list[str] = field(default_factory=list)
+    #: Frames at the input size, kept only when an output or refiner needs them.
+    full_frames: np.ndarray | None = None
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.frames.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Processing size ``(H, W)``."""
+        return int(self.frames.shape[1]), int(self.frames.shape[2])
+
+
+@dataclass
+class FlowPair:
+    """Forward and backward flow of a video, each float32 ``(F-1, H, W, 2)`` in pixels (see module doc)."""
+
+    forward: np.ndarray
+    backward: np.ndarray
+
+    def __post_init__(self) -> None:
+        check_shape("forward flow", self.forward, ["N", "H", "W", 2])
+        check_shape("backward flow", self.backward, [self.forward.shape[0], self.forward.shape[1], self.forward.shape[2], 2])
+
+
+@dataclass
+class Trajectories:
+    """Dense point trajectories in a compact CSR-like layout.
+
+    Trajectory ``j`` lives in frames ``start[j] .. start[j] + length[j] - 1`` (one contiguous interval);
+    its positions are ``positions[offsets[j] : offsets[j + 1]]``, float32 ``(length[j], 2)`` as (x, y) pixels.
+    ``labels[t, y, x]`` is the id of the trajectory that covers pixel (x, y) of frame t (every pixel of every
+    frame is covered, so no entry is negative).
+    """
+
+    start: np.ndarray  # int32 (T,)
+    length: np.ndarray  # int32 (T,)
+    offsets: np.ndarray  # int64 (T+1,)
+    positions: np.ndarray  # float32 (N, 2)
+    labels: np.ndarray  # int32 (F, H, W)
+
+    @property
+    def count(self) -> int:
+        return int(self.start.shape[0])
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.labels.shape[0])
+
+    def positions_of(self, j: int) -> np.ndarray:
+        return self.positions[self.offsets[j] : self.offsets[j + 1]]
+
+
+@dataclass
+class RigidityResult:
+    """Output of a rigidity stage.
+
+    ``ed`` is float32 ``(F, H, W)``: the epipolar distance (or the selected model's residual) in pixels of the
+    processing resolution, for every pixel of every frame. ``per_trajectory`` is float32 ``(T,)`` or ``None``.
+    ``triplets`` holds one small dict of diagnostics per triplet (frames, model chosen, inlier ratio, ...).
+    """
+
+    ed: np.ndarray
+    per_trajectory: np.ndarray | None = None
+    triplets: list[dict] = field(default_factory=list)

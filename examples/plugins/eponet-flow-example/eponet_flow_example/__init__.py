@@ -1,0 +1,1 @@
+"""Example third-party eponet plugin package (see plugin.py)."""

@@ -1,0 +1,71 @@
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+
+def _run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+@pytest.fixture
+def spec_file(tmp_path, frames_dir):
+    path = tmp_path / "spec.yaml"
+    path.write_text(textwrap.dedent(f"""
+        preset: geometry
+        input: {{path: {frames_dir}, scale: 1.0}}
+        stages: {{trajectories: null, rigidity: null}}
+        output: {{dir: {tmp_path / 'out'}, save: [flow]}}
+        cache: {{enabled: false}}
+    """))
+    return path
+
+
+def test_run_and_validate_succeed(spec_file, tmp_path):
+    result = _run("eponet", "validate", str(spec_file))
+    assert result.returncode == 0 and "valid (preset geometry; flow=dis; 1 sequence(s): clip)" in result.stdout
+    result = _run("eponet.run", str(spec_file), "-q")
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "out" / "run.json").is_file()
+
+
+def test_bad_spec_is_one_line_and_exit_2(spec_file):
+    result = _run("eponet.run", str(spec_file), "--set", "stages.flow.preset=slow")
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.stderr
+    assert lines[0].startswith(f"error: {spec_file}: stages.flow.preset: expected one of 'ultrafast', 'fast', 'medium'")
+
+
+def test_several_problems_one_per_line(spec_file):
+    result = _run("eponet", "validate", str(spec_file), "--set", "stages.flow.preset=slow", "--set", "bogus=1")
+    assert result.returncode == 2
+    assert result.stderr.splitlines()[0] == f"error: {spec_file}: 2 problems:"
+    assert "Traceback" not in result.stderr
+
+
+def test_bad_input_exit_2_and_traceback_only_with_verbose(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"preset: geometry\ninput: {{path: {empty}}}\nstages: {{trajectories: null, rigidity: null}}\n"
+                    f"output: {{dir: {tmp_path / 'o'}, save: [flow]}}\n")
+    result = _run("eponet.run", str(spec))
+    assert result.returncode == 2 and result.stderr.strip() == f"error: {empty}: empty folder, expected frames (.jpg, .jpeg ...)"
+    verbose = _run("eponet.run", str(spec), "-v")
+    assert verbose.returncode == 2 and "Traceback" in verbose.stderr
+
+
+def test_missing_spec_file(tmp_path):
+    result = _run("eponet.run", str(tmp_path / "nope.yaml"))
+    assert result.returncode == 2 and "nope.yaml: cannot read spec" in result.stderr
+
+
+def test_plugins_lists_kinds_parameters_and_presets():
+    result = _run("eponet", "plugins")
+    assert result.returncode == 0
+    out = result.stdout
+    for text in ("flow:", "dis  [eponet", "preset: one of 'ultrafast', 'fast', 'medium', default 'medium'",
+                 "refiner:", "densecrf", "presets:", "epo+:"):
+        assert text in out

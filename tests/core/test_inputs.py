@@ -1,0 +1,77 @@
+import cv2
+import numpy as np
+import pytest
+
+from eponet.core.errors import InputError
+from eponet.core.inputs import discover_sequences, load_video
+from tests.conftest import textured_frames, write_frames
+
+
+def test_frames_folder_natural_order_and_scale(tmp_path):
+    frames = textured_frames(count=4, size=(40, 60))
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    for t, name in enumerate(["f1", "f2", "f10", "f11"]):
+        cv2.imwrite(str(folder / f"{name}.png"), cv2.cvtColor(frames[t], cv2.COLOR_RGB2BGR))
+    (source,) = discover_sequences(folder)
+    assert source.name == "seq" and source.stems == ["f1", "f2", "f10", "f11"] and source.size == (40, 60)
+    video = load_video(source, scale=0.5)
+    assert video.frames.shape == (4, 20, 30, 3) and video.full_frames.shape == (4, 40, 60, 3)
+    np.testing.assert_array_equal(video.full_frames[2], frames[2])
+
+
+def test_video_file(tmp_path):
+    frames = textured_frames(count=6, size=(48, 64))
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    for frame in frames:
+        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    writer.release()
+    (source,) = discover_sequences(path)
+    video = load_video(source, scale=1.0)
+    assert video.name == "clip" and video.num_frames == 6 and video.stems[:2] == ["00000", "00001"]
+    assert np.abs(video.frames.astype(int) - frames.astype(int)).mean() < 8  # MJPG is lossy
+
+
+def test_davis_root_with_sequences(tmp_path):
+    for name in ("bear", "car"):
+        write_frames(tmp_path / "JPEGImages" / "480p" / name, textured_frames(3), suffix=".jpg")
+    assert [s.name for s in discover_sequences(tmp_path)] == ["bear", "car"]
+    assert [s.name for s in discover_sequences(tmp_path, sequences=["car"])] == ["car"]
+    with pytest.raises(InputError, match=r"no sequence 'cat' in .* \(did you mean 'car'\?\)"):
+        discover_sequences(tmp_path, sequences=["cat"])
+    with pytest.raises(InputError, match=r"input.resolution: .*240p does not exist; resolutions here: 480p"):
+        discover_sequences(tmp_path, resolution="240p")
+
+
+def test_max_frames(frames_dir):
+    (source,) = discover_sequences(frames_dir, max_frames=3)
+    assert source.count == 3 and load_video(source, scale=1.0, max_frames=3).num_frames == 3
+
+
+@pytest.mark.parametrize("case", ["empty", "two_frames", "corrupt", "sizes", "not_video", "single_image"])
+def test_bad_inputs_name_the_problem(tmp_path, case):
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    if case == "empty":
+        path, pattern = folder, r"seq: empty folder"
+    elif case == "two_frames":
+        write_frames(folder, textured_frames(2))
+        path, pattern = folder, r"seq: 2 frame\(s\), the pipeline needs at least 3"
+    elif case == "corrupt":
+        write_frames(folder, textured_frames(3))
+        (folder / "00001.png").write_bytes(b"\x89PNG garbage")
+        path, pattern = folder, r"00001.png: cannot read image"
+    elif case == "sizes":
+        write_frames(folder, textured_frames(3))
+        write_frames(folder, textured_frames(1, size=(30, 30)), start=3)
+        path, pattern = folder, r"00003.png: frame is 30x30 but the first frame 00000.png is 64x48"
+    elif case == "not_video":
+        path = tmp_path / "notes.mp4"
+        path.write_text("this is not a video")
+        pattern = r"notes.mp4: not a readable video"
+    else:
+        path = write_frames(folder, textured_frames(1))[0]
+        pattern = r"a single image"
+    with pytest.raises(InputError, match=pattern):
+        discover_sequences(path)

@@ -1,0 +1,54 @@
+import pytest
+
+from eponet.core.params import Param, validate_params
+
+SCHEMA = (
+    Param("iterations", "int", 5, "mean-field iterations", minimum=1),
+    Param("sigma", "float", 1.0, "a width", minimum=0.0, maximum=10.0),
+    Param("mode", "choice", "a", "a mode", choices=("a", "b")),
+    Param("flag", "bool", False, "a switch"),
+)
+
+
+def test_defaults_filled_in():
+    values, problems = validate_params({}, SCHEMA, "stages.x")
+    assert problems == []
+    assert values == {"iterations": 5, "sigma": 1.0, "mode": "a", "flag": False}
+
+
+@pytest.mark.parametrize(
+    "params, message",
+    [
+        ({"iterations": "five"}, 'stages.x.iterations: expected a positive integer, got "five"'),
+        ({"iterations": 0}, "stages.x.iterations: expected a positive integer, got 0"),
+        ({"iterations": True}, "stages.x.iterations: expected a positive integer, got true"),
+        ({"sigma": 11}, "stages.x.sigma: expected a number in [0, 10], got 11"),
+        ({"mode": "c"}, "stages.x.mode: expected one of 'a', 'b', got \"c\""),
+        ({"flag": "yes"}, 'stages.x.flag: expected true or false, got "yes"'),
+    ],
+)
+def test_bad_values_are_reported_with_their_path(params, message):
+    _, problems = validate_params(params, SCHEMA, "stages.x")
+    assert problems == [message]
+
+
+def test_unknown_parameter_suggests_nearest():
+    _, problems = validate_params({"iteration": 3}, SCHEMA, "stages.x")
+    assert len(problems) == 1
+    assert "stages.x.iteration: unknown parameter (did you mean 'iterations'?)" in problems[0]
+
+
+def test_int_accepted_for_float_and_converted():
+    values, problems = validate_params({"sigma": 2}, SCHEMA, "p")
+    assert problems == [] and values["sigma"] == 2.0 and isinstance(values["sigma"], float)
+
+
+def test_required_parameter_missing():
+    schema = (Param("path", "path", None, "a folder", required=True),)
+    _, problems = validate_params({}, schema, "stages.flow")
+    assert problems == ["stages.flow.path: missing required parameter (a folder; a path)"]
+
+
+def test_invalid_default_is_a_programming_error():
+    with pytest.raises(ValueError):
+        Param("n", "int", -1, "bad default", minimum=0)

@@ -1,0 +1,72 @@
+import json
+
+import numpy as np
+import pytest
+
+from eponet.core.cache import Cache
+from eponet.core.errors import InputError
+from eponet.core.io import read_flo
+from eponet.core.pipeline import Pipeline
+from eponet.core.spec import parse_spec
+from tests.conftest import textured_frames, write_frames
+
+
+def _spec(path, out, cache_dir, **stages):
+    return parse_spec({
+        "preset": "geometry",
+        "input": {"path": str(path), "scale": 0.5},
+        "stages": {"trajectories": None, "rigidity": None, **stages},
+        "output": {"dir": str(out), "save": ["flow", "panels"]},
+        "cache": {"dir": str(cache_dir)},
+    })
+
+
+def test_outputs_at_input_size_with_eponet_naming(frames_dir, tmp_path):
+    manifest = Pipeline(_spec(frames_dir, tmp_path / "out", tmp_path / "cache")).run()
+    seq = tmp_path / "out" / "clip"
+    forward = sorted(p.name for p in (seq / "flow" / "forward").iterdir())
+    backward = sorted(p.name for p in (seq / "flow" / "backward").iterdir())
+    assert forward == backward == [f"{t:05d}.flo" for t in range(4)]  # F-1 pairs, named after frame t
+    flow = read_flo(seq / "flow" / "forward" / "00002.flo")
+    assert flow.shape == (48, 64, 2)  # input size, though processed at scale 0.5
+    inner = flow[10:-10, 10:-10]
+    assert abs(inner[..., 0].mean() - 1.0) < 0.2 and abs(inner[..., 1].mean() - 0.5) < 0.2  # vectors in input px
+    back = read_flo(seq / "flow" / "backward" / "00002.flo")[10:-10, 10:-10]
+    assert abs(back[..., 0].mean() + 1.0) < 0.2
+    assert len(list((seq / "panels").iterdir())) == 5
+    run = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert run["seed"] == 0 and run["plugins"]["flow"]["plugin"] == "dis"
+    assert run["sequences"]["clip"]["processing_size"] == [24, 32] and "flow" in run["sequences"]["clip"]["timings_s"]
+    assert {"numpy", "torch", "pluggy", "python"} <= set(run["libraries"])
+    assert manifest["sequences"]["clip"]["frames"] == 5
+
+
+def test_cache_skips_recomputation(frames_dir, tmp_path, monkeypatch):
+    spec = _spec(frames_dir, tmp_path / "out", tmp_path / "cache")
+    first = Pipeline(spec).run()
+    assert first["sequences"]["clip"]["cached"] == []
+    calls = []
+    pipeline = Pipeline(spec)
+    original = pipeline.stages["flow"].estimate
+    monkeypatch.setattr(pipeline.stages["flow"], "estimate", lambda video: calls.append(1) or original(video))
+    second = pipeline.run()
+    assert second["sequences"]["clip"]["cached"] == ["flow"] and calls == []
+    # a different flow parameter is a different key
+    third = Pipeline(_spec(frames_dir, tmp_path / "out", tmp_path / "cache", flow={"preset": "fast"})).run()
+    assert third["sequences"]["clip"]["cached"] == []
+    # the cache can be switched off
+    off = Pipeline(spec, cache=Cache(tmp_path / "cache", enabled=False)).run()
+    assert off["sequences"]["clip"]["cached"] == []
+
+
+def test_nothing_half_written_on_a_corrupt_frame(tmp_path):
+    root = tmp_path / "davis"
+    write_frames(root / "JPEGImages" / "480p" / "a", textured_frames(3))
+    paths = write_frames(root / "JPEGImages" / "480p" / "b", textured_frames(3))
+    paths[2].write_bytes(paths[2].read_bytes()[:60])  # valid header, truncated body
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match=r"b/00002.png"):
+        Pipeline(_spec(root, out, tmp_path / "cache")).run()
+    assert (out / "a" / "flow").is_dir()  # the complete sequence is there
+    assert not (out / "b").exists() and not (out / "run.json").exists()
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no partial folders left

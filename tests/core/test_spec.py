@@ -1,0 +1,127 @@
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from eponet.core.errors import SpecError
+from eponet.core.spec import apply_overrides, load_spec, parse_spec
+
+
+def _flow_only(frames_dir, out, **extra):
+    doc = {
+        "preset": "geometry",
+        "input": {"path": str(frames_dir), "scale": 1.0},
+        "stages": {"trajectories": None, "rigidity": None},
+        "output": {"dir": str(out), "save": ["flow"]},
+    }
+    doc.update(extra)
+    return doc
+
+
+def test_valid_spec_resolves_defaults(frames_dir, tmp_path):
+    spec = parse_spec(_flow_only(frames_dir, tmp_path / "out"))
+    assert list(spec.stages) == ["flow"]
+    assert spec.stages["flow"].plugin == "dis" and spec.stages["flow"].params == {"preset": "medium"}
+    assert spec.input.scale == 1.0 and spec.input.resolution == "480p" and spec.seed == 0
+    assert spec.document["stages"] == {"flow": {"plugin": "dis", "preset": "medium"}}
+
+
+def test_every_problem_is_reported_at_once(frames_dir, tmp_path):
+    doc = {
+        "preset": "geometry",
+        "input": {"path": str(tmp_path / "nowhere"), "scale": 0},
+        "stages": {"refiner": {"plugin": "densecrf", "iterations": "five"}, "flow": {"plugin": "diss"}, "colour": {}},
+        "output": {"dir": str(tmp_path / "o"), "save": ["maks"]},
+        "extra": 1,
+        "seed": -3,
+    }
+    with pytest.raises(SpecError) as info:
+        parse_spec(doc)
+    problems = info.value.problems
+    expected = [
+        "extra: unknown top-level key",
+        "input.scale: expected a number in (0, 1], got 0",
+        f"input.path: {tmp_path / 'nowhere'} does not exist",
+        "seed: expected a non-negative integer, got -3",
+        "output.save: unknown output 'maks' (did you mean 'masks'?)",
+        "stages.colour: unknown stage kind",
+        "stages.flow.plugin: unknown flow plugin 'diss' (did you mean 'dis'?); available: dis, farneback, flo",
+        'stages.refiner.iterations: expected a positive integer, got "five"',
+        "stages.refiner: needs a motion_net or fusion stage",
+    ]
+    for text in expected:
+        assert any(p.startswith(text) for p in problems), (text, problems)
+
+
+def test_preset_override_merges_parameters(frames_dir, tmp_path):
+    doc = _flow_only(frames_dir, tmp_path / "o")
+    doc["stages"]["flow"] = {"preset": "fast"}
+    assert parse_spec(doc).stages["flow"].params == {"preset": "fast"}
+    doc["stages"]["flow"] = {"plugin": "farneback", "levels": 3}
+    params = parse_spec(doc).stages["flow"].params
+    assert params["levels"] == 3 and params["winsize"] == 15 and "preset" not in params
+
+
+def test_unknown_preset_suggests(frames_dir, tmp_path):
+    with pytest.raises(SpecError, match=r"preset: unknown preset 'geometri' \(did you mean 'geometry'\?\)"):
+        parse_spec(_flow_only(frames_dir, tmp_path / "o", preset="geometri"))
+
+
+def test_missing_plugin_of_a_preset_is_reported(frames_dir, tmp_path):
+    doc = _flow_only(frames_dir, tmp_path / "o")
+    doc["stages"] = {"trajectories": None, "rigidity": None, "motion_net": {"plugin": "nonexistent_net"}}
+    with pytest.raises(SpecError, match=r"stages.motion_net.plugin: unknown motion_net plugin 'nonexistent_net'"):
+        parse_spec(doc)
+
+
+def test_outputs_need_their_stage(frames_dir, tmp_path):
+    with pytest.raises(SpecError, match=r"output.save: 'masks' needs a refiner stage"):
+        parse_spec(_flow_only(frames_dir, tmp_path / "o", output={"dir": str(tmp_path / "o"), "save": ["masks"]}))
+
+
+def test_unwritable_output(frames_dir, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(SpecError, match=r"output.dir: .*file exists and is not a folder"):
+        parse_spec(_flow_only(frames_dir, blocker / "out"))
+
+
+def test_yaml_syntax_error_has_line_and_column(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("preset: epo\ninput: {path: x\n  scale: 0.5\n")
+    with pytest.raises(SpecError) as info:
+        load_spec(path)
+    assert str(info.value).startswith(f"{path}: line ")
+    assert "column" in str(info.value) and "YAML syntax error" in str(info.value)
+
+
+def test_spec_must_be_a_mapping(tmp_path):
+    path = tmp_path / "list.yaml"
+    path.write_text("- a\n- b\n")
+    with pytest.raises(SpecError, match="expected a mapping"):
+        load_spec(path)
+
+
+def test_set_overrides_and_relative_paths(frames_dir, tmp_path, monkeypatch):
+    spec_dir = tmp_path / "specs"
+    spec_dir.mkdir()
+    (spec_dir / "s.yaml").write_text(textwrap.dedent(f"""
+        preset: geometry
+        input: {{path: {frames_dir}}}
+        stages: {{trajectories: null, rigidity: null}}
+        output: {{dir: runs/x, save: [flow]}}
+    """))
+    spec = load_spec(spec_dir / "s.yaml", ["stages.flow.preset=ultrafast", "input.scale=0.25", "seed=7"])
+    assert spec.stages["flow"].params["preset"] == "ultrafast"
+    assert spec.input.scale == 0.25 and spec.seed == 7
+    assert spec.output.dir == spec_dir / "runs" / "x"  # relative to the spec file
+    monkeypatch.chdir(tmp_path)
+    spec = load_spec(spec_dir / "s.yaml", ["output.dir=elsewhere"])
+    assert spec.output.dir == tmp_path / "elsewhere"  # --set values are relative to the current folder
+    with pytest.raises(SpecError, match=r"stages.flow.preset: expected one of"):
+        load_spec(spec_dir / "s.yaml", ["stages.flow.preset=slow"])
+
+
+def test_malformed_override():
+    with pytest.raises(SpecError, match=r"--set nonsense: expected key.path=value"):
+        apply_overrides({}, ["nonsense"])

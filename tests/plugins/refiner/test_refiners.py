@@ -1,0 +1,47 @@
+import numpy as np
+
+from eponet.plugins.refiner.densecrf import DenseCrfRefiner, densecrf_mask
+from eponet.plugins.refiner.threshold import ThresholdRefiner
+
+
+def _scene(seed=0):
+    """A blue disc on a textured orange background, and a noisy, blurry probability of it."""
+    rng = np.random.default_rng(seed)
+    height, width = 96, 128
+    yy, xx = np.mgrid[:height, :width]
+    truth = ((xx - 60) ** 2 + (yy - 50) ** 2 < 28 ** 2).astype(np.uint8)
+    frame = np.where(truth[..., None], [40, 60, 200], [210, 140, 60]).astype(np.float64)
+    frame = np.clip(frame + rng.normal(0, 12, frame.shape), 0, 255).astype(np.uint8)
+    import cv2
+
+    soft = cv2.GaussianBlur(truth.astype(np.float32), (0, 0), 6)
+    prob = np.clip(0.15 + 0.5 * soft + rng.normal(0, 0.25, truth.shape), 0, 1).astype(np.float32)
+    return frame, prob, truth
+
+
+def _iou(a, b):
+    return (a & b).sum() / max((a | b).sum(), 1)
+
+
+def test_densecrf_cleans_a_noisy_probability():
+    frame, prob, truth = _scene()
+    thresholded = ThresholdRefiner(threshold=0.5).refine(frame[None], prob[None])[0]
+    refined = densecrf_mask(frame, prob)
+    assert refined.dtype == np.uint8 and set(np.unique(refined)) <= {0, 1}
+    assert _iou(refined, truth) > 0.9
+    assert _iou(refined, truth) > _iou(thresholded, truth) + 0.1
+
+
+def test_densecrf_refiner_batches_frames_and_handles_constant_maps():
+    frame, prob, truth = _scene(1)
+    masks = DenseCrfRefiner(iterations=5, gaussian_sxy=3.0, gaussian_compat=3.0, bilateral_sxy=50.0,
+                            bilateral_srgb=10.0, bilateral_compat=5.0, normalise=True).refine(
+        np.stack([frame, frame]), np.stack([prob, np.full_like(prob, 0.2)]))
+    assert masks.shape == (2,) + truth.shape
+    assert _iou(masks[0], truth) > 0.9
+    assert masks[1].sum() == 0  # a constant low probability stays background (no division by zero)
+
+
+def test_threshold_known_answer():
+    prob = np.array([[[0.2, 0.5, 0.8]]], np.float32)
+    np.testing.assert_array_equal(ThresholdRefiner(threshold=0.5).refine(None, prob), [[[0, 1, 1]]])
