@@ -1,4 +1,4 @@
-"""The ``eponet`` command line: run, validate, plugins, evaluate, make-rbsf."""
+"""The ``eponet`` command line: run, validate, plugins, evaluate, make-rbsf, train."""
 
 from __future__ import annotations
 
@@ -169,6 +169,10 @@ def build_parser() -> argparse.ArgumentParser:
     plugins.add_argument("kind", nargs="?", help="only this stage kind")
     _add_common(plugins)
     plugins.set_defaults(handler=_cmd_plugins)
+    for name, text in (("evaluate", "score masks with the DAVIS J / F / T protocol (see eponet evaluate -h)"),
+                       ("make-rbsf", "generate RBSF-style synthetic videos with exact ground truth"),
+                       ("train", "train a network from a training spec (see eponet train -h)")):
+        sub.add_parser(name, help=text, add_help=False)
     return parser
 
 
@@ -176,6 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
 _FORWARDED = {
     "evaluate": "eponet.evaluate",
     "make-rbsf": "eponet.synth.cli",
+    "train": "eponet.train",
 }
 
 

@@ -28,6 +28,9 @@ class StageSpec:
     params: tuple[Param, ...] = ()
     doc: str = ""
     version: str | None = None
+    #: Optional semantic check of the validated parameters (e.g. that a weights file exists), called while the
+    #: spec is validated, before anything runs; returns problems as ``"<param>: <what is wrong>"`` strings.
+    check: Callable[[dict], list[str]] | None = None
     #: Filled in by the registry: the distribution (package) that provided the plugin.
     package: str = field(default="eponet", compare=False)
 

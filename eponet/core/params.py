@@ -7,14 +7,15 @@ from typing import Any
 
 __all__ = ["Param", "validate_params"]
 
-_TYPES = ("int", "float", "bool", "str", "choice", "path", "list")
+_TYPES = ("int", "float", "bool", "str", "choice", "path", "weights", "list")
 
 
 @dataclass(frozen=True)
 class Param:
     """One plugin parameter.
 
-    ``type`` is one of ``int, float, bool, str, choice, path, list``. ``minimum``/``maximum`` bound
+    ``type`` is one of ``int, float, bool, str, choice, path, weights, list`` (``weights``: a built-in weights
+    name or a path). ``minimum``/``maximum`` bound
     numbers (inclusive unless ``exclusive_min``); ``choices`` lists the values of a ``choice``;
     ``nullable`` allows ``null``.
     """
@@ -57,7 +58,8 @@ class Param:
             else:
                 text = noun
         else:
-            text = {"bool": "true or false", "str": "a string", "path": "a path", "list": "a list"}[self.type]
+            text = {"bool": "true or false", "str": "a string", "path": "a path", "list": "a list",
+                    "weights": "a built-in weights name or a file"}[self.type]
         return text + (" or null" if self.nullable else "")
 
     def check(self, value: Any) -> str | None:
@@ -74,8 +76,8 @@ class Param:
         elif self.type == "bool":
             if not isinstance(value, bool):
                 return bad
-        elif self.type in ("str", "path"):
-            if not isinstance(value, str) or (self.type == "path" and not value):
+        elif self.type in ("str", "path", "weights"):
+            if not isinstance(value, str) or (self.type != "str" and not value):
                 return bad
         elif self.type == "choice":
             if value not in self.choices:

@@ -196,13 +196,18 @@ class Pipeline:
         from eponet.evaluation import evaluate
 
         options = self.spec.evaluate
+        extra = {}
+        root = options.get("root") or self.spec.input.path
+        if options["dataset"] == "generic":  # ground-truth masks folder + the frames that were processed
+            root, extra["frames"] = options.get("masks") or root, self.spec.input.path
         return evaluate(
             options["dataset"],
-            root=options.get("root") or self.spec.input.path,
+            root=root,
             results=self.spec.output.dir,
             sequences=sequences,
             resolution=options.get("resolution") or self.spec.input.resolution,
             compute_t=options.get("t", True),
+            **extra,
         )
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from typing import Iterable, TypeVar
 
-__all__ = ["set_quiet", "track"]
+__all__ = ["set_quiet", "track", "progress_enabled"]
 
 T = TypeVar("T")
 _QUIET = False
@@ -17,9 +17,14 @@ def set_quiet(quiet: bool) -> None:
     _QUIET = quiet
 
 
+def progress_enabled() -> bool:
+    """Whether progress bars are shown: not quiet, and stderr is a terminal."""
+    return not _QUIET and sys.stderr.isatty()
+
+
 def track(iterable: Iterable[T], desc: str, total: int | None = None) -> Iterable[T]:
     """Wrap ``iterable`` in a tqdm bar on stderr, unless quiet or stderr is not a TTY."""
-    if _QUIET or not sys.stderr.isatty():
+    if not progress_enabled():
         return iterable
     from tqdm import tqdm
 

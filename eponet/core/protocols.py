@@ -23,6 +23,7 @@ __all__ = [
     "Fusion",
     "Refiner",
     "PROTOCOLS",
+    "METHODS",
 ]
 
 #: Stage kinds in pipeline order.
@@ -85,4 +86,15 @@ PROTOCOLS = {
     "appearance": AppearanceBackbone,
     "fusion": Fusion,
     "refiner": Refiner,
+}
+
+#: The method each kind's stages implement.
+METHODS = {
+    "flow": "estimate",
+    "trajectories": "build",
+    "rigidity": "score",
+    "motion_net": "predict",
+    "appearance": "features",
+    "fusion": "fuse",
+    "refiner": "refine",
 }

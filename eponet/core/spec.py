@@ -164,11 +164,21 @@ def apply_overrides(document: dict, overrides: list[str]) -> tuple[dict, set[str
             value = raw
         node = document
         parts = key.split(".")
-        for part in parts[:-1]:
-            if not isinstance(node.get(part), dict):
-                node[part] = {}
-            node = node[part]
-        node[parts[-1]] = value
+        try:
+            for part in parts[:-1]:
+                if isinstance(node, list):  # numeric indices reach into lists: phases.1.epochs=3
+                    node = node[int(part)]
+                    continue
+                if not isinstance(node.get(part), (dict, list)):
+                    node[part] = {}
+                node = node[part]
+            if isinstance(node, list):
+                node[int(parts[-1])] = value
+            else:
+                node[parts[-1]] = value
+        except (ValueError, IndexError):
+            problems.append(f"--set {item}: {key} does not name an existing list element")
+            continue
         overridden.add(key)
     if problems:
         raise SpecError(problems)
@@ -197,7 +207,7 @@ def parse_spec(
             return None
         value = os.path.expanduser(value)
         root = Path.cwd() if key in overridden else base_dir
-        return Path(value) if os.path.isabs(value) else (root / value)
+        return Path(os.path.normpath(value if os.path.isabs(value) else root / value))
 
     for key in document:
         if key not in TOP_LEVEL_KEYS:
@@ -280,8 +290,11 @@ def parse_spec(
         params, param_problems = validate_params(config, spec.params, path)
         problems.extend(param_problems)
         for param in spec.params:
-            if param.type == "path" and isinstance(params.get(param.name), str):
-                params[param.name] = str(resolve_path(f"{path}.{param.name}", params[param.name]))
+            value = params.get(param.name)
+            if isinstance(value, str) and (param.type == "path" or (param.type == "weights" and value not in _builtin_weights())):
+                params[param.name] = str(resolve_path(f"{path}.{param.name}", value))
+        if spec.check is not None and not param_problems:
+            problems.extend(f"{path}.{problem}" for problem in spec.check(params))
         stages[kind] = StageConfig(kind, spec, params)
 
     # the composition must be complete
@@ -307,6 +320,10 @@ def parse_spec(
         evaluate = _validate_evaluate(evaluate, resolve_path, problems)
         if evaluate is not None and "refiner" not in present:
             problems.append("evaluate: scoring needs masks, i.e. a refiner stage")
+        if evaluate is not None and input_values.get("max_frames"):
+            problems.append("evaluate: scores need every frame of a sequence, but input.max_frames limits them")
+        if evaluate is not None and evaluate.get("dataset") == "generic" and not evaluate.get("masks"):
+            problems.append("evaluate.masks: dataset generic needs the folder of ground-truth masks")
 
     if problems:
         raise SpecError(problems, file=file)
@@ -376,6 +393,12 @@ def _section(document: dict, name: str, schema: dict[str, Param], problems: list
     values, section_problems = validate_params(raw, tuple(schema.values()), name)
     problems.extend(section_problems)
     return values
+
+
+def _builtin_weights() -> set[str]:
+    from eponet.weights import builtin_weights
+
+    return set(builtin_weights())
 
 
 def _hint(name: str, candidates) -> str:

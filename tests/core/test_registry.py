@@ -8,7 +8,7 @@ import pytest
 
 from eponet.core.errors import DuplicatePlugin, PluginNotFound
 from eponet.core.hookspecs import StageSpec
-from eponet.core.protocols import KINDS, PROTOCOLS
+from eponet.core.protocols import KINDS, METHODS, PROTOCOLS
 from eponet.core.registry import Registry, get_registry
 
 REPO = Path(__file__).resolve().parents[2]
@@ -27,11 +27,22 @@ def test_every_builtin_satisfies_its_kind_protocol():
     for (kind, name), spec in registry.stages.items():
         if spec.package != "eponet":
             continue
+        assert callable(getattr(spec.factory, METHODS[kind], None)), f"{kind}/{name} lacks {METHODS[kind]}()"
         params = {p.name: p.default for p in spec.params}
         if name == "flo":
             params["path"] = "."
+        if spec.check is not None and spec.check(params):
+            continue  # needs a file (e.g. weights) that the defaults do not name
         stage = spec.factory(**params)
         assert isinstance(stage, PROTOCOLS[kind]), f"{kind}/{name}"
+        # schema defaults equal the constructor's keyword defaults
+        import inspect
+
+        defaults = {k: v.default for k, v in inspect.signature(spec.factory).parameters.items()
+                    if v.default is not inspect.Parameter.empty}
+        for param in spec.params:
+            if param.name in defaults:
+                assert defaults[param.name] == param.default, f"{kind}/{name}.{param.name}"
 
 
 def test_presets_cover_the_default_compositions():

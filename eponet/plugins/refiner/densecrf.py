@@ -22,6 +22,7 @@ def densecrf_mask(
     bilateral_srgb: float = 10.0,
     bilateral_compat: float = 5.0,
     normalise: bool = True,
+    scale: float = 1.0,
 ) -> np.ndarray:
     """Binary mask uint8 ``(H, W)`` from an RGB ``frame`` uint8 ``(H, W, 3)`` and P(fg) float ``(H, W)``.
 
@@ -29,6 +30,10 @@ def densecrf_mask(
     unary = -log(p) with p clipped at 1e-5, a Gaussian kernel (sxy 3, compat 3) and a bilateral kernel
     (sxy 50, srgb 10, compat 5), both DIAG_KERNEL / NORMALIZE_SYMMETRIC, 5 mean-field iterations, argmax.
     A constant probability map (max = min, where the original divides by zero) is used as it is.
+
+    With ``scale < 1`` the CRF runs on a downscaled frame (spatial standard deviations scaled alike) and the
+    marginals are upsampled bilinearly before the argmax: about 1/scale^2 times faster, slightly softer
+    boundaries.
     """
     import pydensecrf.densecrf as dcrf
     from pydensecrf.utils import unary_from_softmax
@@ -39,6 +44,14 @@ def densecrf_mask(
         if hi > lo:
             p = (p - lo) / (hi - lo)
     p = np.clip(p, 0.0, 1.0)
+    full_size = p.shape
+    if scale < 1.0:
+        import cv2
+
+        small = (max(8, int(round(full_size[1] * scale))), max(8, int(round(full_size[0] * scale))))
+        frame = cv2.resize(frame, small, interpolation=cv2.INTER_AREA)
+        p = cv2.resize(p, small, interpolation=cv2.INTER_LINEAR)
+        gaussian_sxy, bilateral_sxy = gaussian_sxy * scale, bilateral_sxy * scale
     height, width = p.shape
     crf = dcrf.DenseCRF2D(width, height, 2)
     crf.setUnaryEnergy(np.ascontiguousarray(unary_from_softmax(np.stack([1.0 - p, p]))))
@@ -47,7 +60,12 @@ def densecrf_mask(
     crf.addPairwiseBilateral(sxy=bilateral_sxy, srgb=bilateral_srgb, rgbim=np.ascontiguousarray(frame, dtype=np.uint8),
                              compat=bilateral_compat, kernel=dcrf.DIAG_KERNEL, normalization=dcrf.NORMALIZE_SYMMETRIC)
     q = np.asarray(crf.inference(iterations)).reshape(2, height, width)
-    return (q[1] > q[0]).astype(np.uint8)
+    margin = q[1] - q[0]
+    if margin.shape != full_size:
+        import cv2
+
+        margin = cv2.resize(margin, (full_size[1], full_size[0]), interpolation=cv2.INTER_LINEAR)
+    return (margin > 0).astype(np.uint8)
 
 
 class DenseCrfRefiner:
@@ -78,6 +96,8 @@ def eponet_stages():
                 Param("bilateral_srgb", "float", 10.0, "colour std of the bilateral kernel (0-255)", minimum=0.0, exclusive_min=True),
                 Param("bilateral_compat", "float", 5.0, "weight of the bilateral kernel", minimum=0.0),
                 Param("normalise", "bool", True, "min-max normalise the probability per frame first (original code)"),
+                Param("scale", "float", 1.0, "run at this fraction of the frame size (1 = as the original code)",
+                      minimum=0.1, maximum=1.0),
             ),
             doc="dense CRF (pydensecrf) with the EpO-Net defaults",
         )

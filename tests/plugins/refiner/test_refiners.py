@@ -35,7 +35,7 @@ def test_densecrf_cleans_a_noisy_probability():
 def test_densecrf_refiner_batches_frames_and_handles_constant_maps():
     frame, prob, truth = _scene(1)
     masks = DenseCrfRefiner(iterations=5, gaussian_sxy=3.0, gaussian_compat=3.0, bilateral_sxy=50.0,
-                            bilateral_srgb=10.0, bilateral_compat=5.0, normalise=True).refine(
+                            bilateral_srgb=10.0, bilateral_compat=5.0, normalise=True, scale=1.0).refine(
         np.stack([frame, frame]), np.stack([prob, np.full_like(prob, 0.2)]))
     assert masks.shape == (2,) + truth.shape
     assert _iou(masks[0], truth) > 0.9
@@ -45,3 +45,11 @@ def test_densecrf_refiner_batches_frames_and_handles_constant_maps():
 def test_threshold_known_answer():
     prob = np.array([[[0.2, 0.5, 0.8]]], np.float32)
     np.testing.assert_array_equal(ThresholdRefiner(threshold=0.5).refine(None, prob), [[[0, 1, 1]]])
+
+
+def test_downscaled_crf_agrees_with_full_resolution():
+    frame, prob, truth = _scene(2)
+    full = densecrf_mask(frame, prob)
+    half = densecrf_mask(frame, prob, scale=0.5)
+    assert half.shape == truth.shape
+    assert _iou(half, truth) > 0.88 and _iou(half, full) > 0.9
