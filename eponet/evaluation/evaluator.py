@@ -115,10 +115,12 @@ class _Runner:
         if self._pool is None:
             import multiprocessing
 
-            # fork where there is one: spawn re-imports the caller's __main__, which breaks scripts without an
-            # ``if __name__ == "__main__"`` guard and code run from stdin. The jobs use numpy, PIL, scipy and
-            # OpenCV (pthreads backend, fork-safe), never torch or BLAS, so inheriting the parent's threads is fine.
-            method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+            # Never plain fork: a parent that has run threads (torch's OpenMP pool after a pipeline run, a writer
+            # thread, a thread pool of a test) can leave a lock held in the child, which then hangs for ever.
+            # forkserver forks from a clean single-threaded server; like spawn it imports the caller's
+            # __main__, so scripts calling evaluate() need the usual ``if __name__ == "__main__"`` guard.
+            methods = multiprocessing.get_all_start_methods()
+            method = "forkserver" if "forkserver" in methods else "spawn"
             self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context(method),
                                              initializer=_worker_init)
         chunksize = max(1, min(chunksize, len(jobs) // (4 * self.workers) or 1))
