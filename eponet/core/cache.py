@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
@@ -11,7 +12,7 @@ import numpy as np
 
 from .io import atomic_path
 
-__all__ = ["Cache", "content_key", "array_digest"]
+__all__ = ["Cache", "content_key", "array_digest", "code_fingerprint"]
 
 log = logging.getLogger(__name__)
 
@@ -20,6 +21,18 @@ def array_digest(array: np.ndarray) -> str:
     """sha256 of an array's dtype, shape and bytes."""
     digest = hashlib.sha256(f"{array.dtype.str}{array.shape}".encode())
     digest.update(np.ascontiguousarray(array).data)
+    return digest.hexdigest()
+
+
+@functools.lru_cache(maxsize=None)
+def code_fingerprint() -> str:
+    """sha256 over eponet's own Python sources, so that a changed algorithm never reuses stale results
+    (third-party plugins are keyed by their package version instead)."""
+    root = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
     return digest.hexdigest()
 
 

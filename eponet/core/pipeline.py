@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cache import Cache, array_digest, content_key
+from .cache import Cache, array_digest, code_fingerprint, content_key
 from .errors import EponetError, StageError
 from .imaging import resize_map
 from .inputs import discover_sequences, load_video
@@ -77,8 +77,9 @@ class Pipeline:
 
         def key_of(kind: str, upstream: str, **extra) -> str:
             config = spec.stages[kind]
-            return content_key(stage=kind, plugin=config.plugin, version=config.spec.version, params=config.params,
-                               upstream=upstream, **extra)
+            code = code_fingerprint() if config.spec.package == "eponet" else None
+            return content_key(stage=kind, plugin=config.plugin, version=config.spec.version, code=code,
+                               params=config.params, upstream=upstream, **extra)
 
         flow_key = key_of("flow", input_key, stems=video.stems, size=video.size)
         result.flow = self._cached("flow", flow_key, timer, video,

@@ -1,0 +1,158 @@
+"""Speed and memory of the geometry stages: dense trajectories + trifocal rigidity (with painting).
+
+Prints seconds per frame and the peak resident memory of a fresh process for 25, 50 and 100 frames at
+854x480 and 427x240. Flow is precomputed (OpenCV DIS, preset medium) and not timed. The video is a real
+DAVIS sequence played forwards and backwards until it has 100 frames ("ping-pong": the flow of a reversed
+pair is the original pair's backward/forward flow), or, without the shared data, a synthetic rendered scene.
+
+Usage::
+
+    python benchmarks/bench_geometry.py [--frames 25 50 100] [--sizes 854x480 427x240] [--variant trifocal]
+
+Runs each measurement in its own subprocess (so that peak RSS is per measurement) with one BLAS thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("EPONET_SHARED_DATA") or REPO.parent / "shared" / "data")
+DAVIS = DATA / "davis2016-train" / "DAVIS"
+
+
+def _gray_frames(size: tuple[int, int]) -> tuple[list[np.ndarray], str]:
+    import cv2
+
+    w, h = size
+    if w >= 854 and (DAVIS / "JPEGImages" / "480p" / "motorbike").is_dir():
+        files, name = sorted((DAVIS / "JPEGImages" / "480p" / "motorbike").glob("*.jpg")), "DAVIS motorbike 480p"
+    elif (DAVIS / "JPEGImages" / "240p" / "stroller").is_dir():
+        files, name = sorted((DAVIS / "JPEGImages" / "240p" / "stroller").glob("*.jpg")), "DAVIS stroller 240p"
+    else:
+        files, name = [], "synthetic scene"
+    if files:
+        frames = [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in files]
+        frames = [cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) if f.shape != (h, w) else f for f in frames]
+        return frames, f"{name}, resized to {w}x{h}" if frames[0].shape != (h, w) else name
+    sys.path.insert(0, str(REPO))
+    from tests.geometry.scenes import render_scene
+
+    video = render_scene(num_frames=40, size=(h, w), seed=0)
+    return [f[..., 0] for f in video.frames], name
+
+
+def prepare_flow(size: tuple[int, int], frames: int, out: Path) -> str:
+    """DIS flow of a ``frames``-long ping-pong video at ``size``, saved as ``out`` (.npz)."""
+    import cv2
+
+    gray, name = _gray_frames(size)
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    n = len(gray)
+    fw = [dis.calc(gray[t], gray[t + 1], None) for t in range(n - 1)]
+    bw = [dis.calc(gray[t + 1], gray[t], None) for t in range(n - 1)]
+    forward, backward = [], []
+    t, step = 0, 1
+    while len(forward) < frames - 1:  # ping-pong through the pairs
+        if step > 0:
+            forward.append(fw[t]), backward.append(bw[t])
+        else:
+            forward.append(bw[t]), backward.append(fw[t])
+        if not 0 <= t + step < n - 1:
+            step = -step
+        else:
+            t += step
+    np.savez(out, forward=np.stack(forward).astype(np.float32), backward=np.stack(backward).astype(np.float32))
+    return name
+
+
+def _peak_rss_mb() -> float:
+    """Peak resident memory of this process (VmHWM; unlike ru_maxrss it restarts at exec, so the parent's
+    memory at fork time does not count)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024.0
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def measure(path: str, variant: str) -> dict:
+    """Runs in the child process: load flow, build trajectories, score; report timings and memory."""
+    from eponet.core.types import FlowPair
+    from eponet.plugins.rigidity.fundamental import FundamentalRigidity
+    from eponet.plugins.rigidity.homography import HomographyRigidity
+    from eponet.plugins.rigidity.trifocal import TrifocalRigidity
+    from eponet.plugins.trajectories.dense import DenseTrajectories
+
+    data = np.load(path)
+    flow = FlowPair(data["forward"], data["backward"])
+    after_load = _peak_rss_mb()
+    stages = {"trifocal": TrifocalRigidity, "homography": HomographyRigidity, "fundamental": FundamentalRigidity}
+    stage = stages[variant]()
+    t0 = time.perf_counter()
+    traj = DenseTrajectories().build(flow)
+    t1 = time.perf_counter()
+    result = stage.score(traj, flow, np.random.default_rng(0))
+    t2 = time.perf_counter()
+    frames = traj.num_frames
+    return {
+        "frames": frames,
+        "trajectories": traj.count,
+        "points": int(traj.positions.shape[0]),
+        "traj_s_per_frame": (t1 - t0) / frames,
+        "rigidity_s_per_frame": (t2 - t1) / frames,
+        "total_s_per_frame": (t2 - t0) / frames,
+        "rss_after_flow_mb": after_load,
+        "peak_rss_mb": _peak_rss_mb(),
+        "ed_mb": result.ed.nbytes / 2**20,
+    }
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, nargs="+", default=[25, 50, 100])
+    parser.add_argument("--sizes", nargs="+", default=["854x480", "427x240"])
+    parser.add_argument("--variant", default="trifocal", choices=["trifocal", "homography", "fundamental"])
+    parser.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        print(json.dumps(measure(*args.child)))
+        return 0
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    print(f"geometry benchmark: dense trajectories + rigidity '{args.variant}' (defaults) + painting; "
+          f"flow (DIS medium) precomputed; {os.cpu_count()} CPU cores")
+    print(f"{'size':>8} {'frames':>6} {'traj':>9} {'rigidity':>9} {'total':>9} {'T':>9} {'RSS flow':>9} "
+          f"{'peak RSS':>9}")
+    print(f"{'':>8} {'':>6} {'s/frame':>9} {'s/frame':>9} {'s/frame':>9} {'':>9} {'MB':>9} {'MB':>9}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for size_text in args.sizes:
+            w, h = (int(v) for v in size_text.split("x"))
+            for frames in args.frames:
+                path = Path(tmp) / f"flow_{w}x{h}_{frames}.npz"
+                source = prepare_flow((w, h), frames, path)
+                command = [sys.executable, __file__, "--child", str(path), args.variant]
+                out = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
+                if out.returncode != 0:
+                    print(out.stderr.strip().splitlines()[-1] if out.stderr.strip() else "child failed")
+                    return 1
+                r = json.loads(out.stdout.strip().splitlines()[-1])
+                print(f"{size_text:>8} {r['frames']:>6} {r['traj_s_per_frame']:>9.3f} "
+                      f"{r['rigidity_s_per_frame']:>9.3f} {r['total_s_per_frame']:>9.3f} {r['trajectories']:>9} "
+                      f"{r['rss_after_flow_mb']:>9.0f} "
+                      f"{r['peak_rss_mb']:>9.0f}   ({source})", flush=True)
+                path.unlink()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

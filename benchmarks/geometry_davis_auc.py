@@ -1,0 +1,142 @@
+"""How well ED separates the moving object on real video: per-frame ROC AUC of ED maps against the
+DAVIS-2016 ground-truth masks, per sequence, for four rigidity variants.
+
+Variants: ``default`` (trifocal, degeneracy gric, guided sampling), ``none`` (trifocal, degeneracy none),
+``paper`` (trifocal, degeneracy none and uniform sampling: the paper's estimation), ``fundamental`` (pairwise
+F, USAC MAGSAC++) and ``homography`` (dominant homographies only); all other parameters at their defaults. All use the
+``dense`` trajectories (defaults) on OpenCV DIS flow (preset medium) of the 427x240 frames; masks are
+reduced to 427x240 by area averaging (a pixel is foreground when more than half of it is). Frames whose mask
+is empty are skipped (AUC undefined). Usage::
+
+    python benchmarks/geometry_davis_auc.py [--sequences bear boat ...] [--frames N] [--variants default none]
+        [--flow-cache DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("EPONET_SHARED_DATA") or REPO.parent / "shared" / "data")
+DAVIS = DATA / "davis2016-train" / "DAVIS"
+VARIANTS = ("default", "none", "paper", "fundamental", "homography")
+
+
+def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:
+    """Area under the ROC curve of ``score`` for boolean labels (Mann-Whitney; ties count one half)."""
+    from scipy.stats import rankdata
+
+    pos = np.asarray(positive, bool).ravel()
+    n_pos = int(pos.sum())
+    n_neg = pos.size - n_pos
+    if n_pos == 0 or n_neg == 0:
+        return float("nan")
+    ranks = rankdata(np.asarray(score, np.float64).ravel())
+    return float((ranks[pos].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+
+
+def make_stage(variant: str):
+    from eponet.plugins.rigidity.fundamental import FundamentalRigidity
+    from eponet.plugins.rigidity.homography import HomographyRigidity
+    from eponet.plugins.rigidity.trifocal import TrifocalRigidity
+
+    return {
+        "default": TrifocalRigidity,
+        "none": lambda: TrifocalRigidity(degeneracy="none"),
+        "paper": lambda: TrifocalRigidity(degeneracy="none", sampling="uniform"),
+        "fundamental": FundamentalRigidity,
+        "homography": HomographyRigidity,
+    }[variant]()
+
+
+def load_sequence(name: str, frames: int | None = None, root: Path = DAVIS):
+    """Grey 240p frames (F, 240, 427) and boolean masks at the same size."""
+    files = sorted((root / "JPEGImages" / "240p" / name).glob("*.jpg"))[:frames]
+    gray = np.stack([cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in files])
+    h, w = gray.shape[1:]
+    masks = []
+    for f in sorted((root / "Annotations" / "480p" / name).glob("*.png"))[: len(files)]:
+        m = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0
+        masks.append(cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA) > 0.5)
+    return gray, np.stack(masks)
+
+
+def dis_flow(gray: np.ndarray):
+    from eponet.core.types import FlowPair
+
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    fw = np.stack([dis.calc(gray[t], gray[t + 1], None) for t in range(len(gray) - 1)])
+    bw = np.stack([dis.calc(gray[t + 1], gray[t], None) for t in range(len(gray) - 1)])
+    return FlowPair(fw.astype(np.float32), bw.astype(np.float32))
+
+
+def sequence_auc(name: str, variants=VARIANTS, frames: int | None = None, flow_cache: Path | None = None,
+                 seed: int = 0, root: Path = DAVIS) -> dict:
+    """Mean per-frame ROC AUC of each variant's ED for one sequence (and timings)."""
+    from eponet.core.types import FlowPair
+    from eponet.plugins.trajectories.dense import DenseTrajectories
+
+    gray, masks = load_sequence(name, frames, root)
+    cached = flow_cache / f"{name}_{len(gray)}.npz" if flow_cache else None
+    if cached is not None and cached.exists():
+        data = np.load(cached)
+        flow = FlowPair(data["forward"], data["backward"])
+    else:
+        flow = dis_flow(gray)
+        if cached is not None:
+            cached.parent.mkdir(parents=True, exist_ok=True)
+            np.savez(cached, forward=flow.forward, backward=flow.backward)
+    t0 = time.perf_counter()
+    traj = DenseTrajectories().build(flow)
+    out = {"frames": len(gray), "traj_s": time.perf_counter() - t0}
+    for variant in variants:
+        t0 = time.perf_counter()
+        result = make_stage(variant).score(traj, flow, np.random.default_rng(seed))
+        out[variant] = float(np.nanmean([roc_auc(result.ed[t], masks[t]) for t in range(len(masks))]))
+        out[variant + "_s"] = time.perf_counter() - t0
+        models = [t.get("model") for t in result.triplets]
+        out[variant + "_models"] = {m: models.count(m) for m in sorted(set(models))}
+    return out
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sequences", nargs="*", help="default: the 30 DAVIS-2016 train sequences")
+    parser.add_argument("--frames", type=int, default=None, help="only the first N frames of each sequence")
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    parser.add_argument("--flow-cache", type=Path, default=None, help="folder to keep DIS flow between runs")
+    parser.add_argument("--models", action="store_true", help="also print the models chosen per sequence")
+    args = parser.parse_args(argv)
+    if not (DAVIS / "ImageSets" / "train.txt").exists():
+        print(f"DAVIS-2016 train data not found under {DAVIS} (set EPONET_SHARED_DATA)")
+        return 1
+    logging.basicConfig(level=logging.ERROR)
+    names = args.sequences or (DAVIS / "ImageSets" / "train.txt").read_text().split()
+    print(f"ED ROC AUC on DAVIS-2016 train, 427x240, DIS flow, seed 0; mean per-frame AUC per sequence")
+    header = " ".join(f"{v:>11}" for v in args.variants)
+    print(f"{'sequence':<18} {'frames':>6} {header}   s/frame (traj + each variant)")
+    rows = []
+    for name in names:
+        r = sequence_auc(name, args.variants, args.frames, args.flow_cache)
+        rows.append(r)
+        per_frame = (r["traj_s"] + sum(r[v + "_s"] for v in args.variants) / len(args.variants)) / r["frames"]
+        values = " ".join(f"{r[v]:>11.3f}" for v in args.variants)
+        print(f"{name:<18} {r['frames']:>6} {values}   {per_frame:.3f}", flush=True)
+        if args.models:
+            print("    " + "; ".join(f"{v}: {r[v + '_models']}" for v in args.variants))
+    means = " ".join(f"{np.mean([r[v] for r in rows]):>11.3f}" for v in args.variants)
+    print(f"{'mean':<18} {sum(r['frames'] for r in rows):>6} {means}")
+    print(f"{'median':<18} {'':>6} " + " ".join(f"{np.median([r[v] for r in rows]):>11.3f}" for v in args.variants))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

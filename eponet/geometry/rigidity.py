@@ -1,0 +1,128 @@
+"""The common skeleton of the rigidity stages (trifocal, homography, fundamental) and their shared parameters."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from ..core.params import Param
+from ..core.types import FlowPair, RigidityResult, Trajectories
+from .scoring import check_rigidity_inputs, ed_maps_from_scores, frame_groups, score_frame_groups
+from .triplets import FittedModel, RobustSettings
+
+__all__ = ["RigidityStage", "GROUP_PARAMS", "STATIC_PARAMS", "ROBUST_PARAMS", "GRIC_PARAMS"]
+
+log = logging.getLogger(__name__)
+
+#: Parameters every rigidity stage has (schema defaults equal the constructors' defaults).
+GROUP_PARAMS = (
+    Param("max_points", "int", 10000, "trajectories sampled per frame group to fit its model", minimum=20),
+    Param("stride", "int", 1, "frame gap k of the groups (t, t+k, t+2k): wider groups see more parallax", minimum=1),
+    Param(
+        "sampling",
+        "choice",
+        "guided",
+        "how the fitted sample is drawn: 'guided' down-weights trajectories that earlier groups found moving "
+        "(so a large or absorbed object cannot capture the background model); 'uniform' (the paper)",
+        choices=("guided", "uniform"),
+    ),
+)
+
+#: The static-camera test (stages with an epipolar model).
+STATIC_PARAMS = (
+    Param(
+        "static_threshold",
+        "float",
+        0.25,
+        "pixels: a point moving less than this between every two frames of a group 'did not move'; a group "
+        "where at least half the points did not move is a static camera (0 disables the test)",
+        minimum=0.0,
+    ),
+)
+
+#: Model selection (stages that can choose a homography for degenerate motion).
+GRIC_PARAMS = (
+    Param(
+        "min_sigma",
+        "float",
+        0.5,
+        "pixels: the lowest noise level GRIC assumes; motion that homographies explain to within about this "
+        "counts as degenerate for the epipolar model",
+        minimum=0.0,
+    ),
+)
+
+#: Parameters of the seeded RANSAC fits.
+ROBUST_PARAMS = (
+    Param(
+        "confidence", "float", 0.99, "RANSAC confidence of drawing one all-inlier sample", minimum=0.5, maximum=0.999999
+    ),
+    Param("max_trials", "int", 1000, "RANSAC trial cap per fit", minimum=1),
+    Param(
+        "threshold",
+        "float",
+        None,
+        "inlier threshold in pixels (RMS first-order residual per point); null: adaptive, LMedS scoring with "
+        "the 95% chi-square bound of the robust noise estimate",
+        minimum=0.0,
+        exclusive_min=True,
+        nullable=True,
+    ),
+)
+
+
+class RigidityStage:
+    """Template of a rigidity stage: groups of ``views`` frames, one model per group, per-trajectory means,
+    ED maps. Subclasses set ``views`` and implement :meth:`estimate`."""
+
+    views = 3
+
+    def __init__(
+        self,
+        *,
+        max_points: int = 10000,
+        stride: int = 1,
+        sampling: str = "guided",
+        static_threshold: float = 0.25,
+        confidence: float = 0.99,
+        max_trials: int = 1000,
+        threshold: float | None = None,
+        min_sigma: float = 0.5,
+    ):
+        if max_points < 20:
+            raise ValueError(f"max_points must be >= 20, got {max_points}")
+        if stride < 1:
+            raise ValueError(f"stride must be >= 1, got {stride}")
+        if sampling not in ("guided", "uniform"):
+            raise ValueError(f"sampling must be 'guided' or 'uniform', got {sampling!r}")
+        self.sampling = sampling
+        self.max_points = int(max_points)
+        self.stride = int(stride)
+        self.static_threshold = float(static_threshold)
+        self.settings = RobustSettings(
+            confidence=float(confidence),
+            max_trials=int(max_trials),
+            threshold=None if threshold is None else float(threshold),
+            min_sigma=float(min_sigma),
+        )
+
+    def estimate(self, points: list[np.ndarray], rng: np.random.Generator) -> FittedModel:  # pragma: no cover
+        raise NotImplementedError
+
+    def score(self, trajectories: Trajectories, flow: FlowPair | None, rng: np.random.Generator) -> RigidityResult:
+        """Per-pixel distance maps float32 ``(F, H, W)`` in pixels, per-trajectory means and per-group records.
+
+        Raises :class:`~eponet.core.errors.InputError` for fewer than 3 frames or flow that does not match
+        the trajectories.
+        """
+        check_rigidity_inputs(trajectories, flow, self.views)
+        groups = frame_groups(trajectories.num_frames, self.views, self.stride)
+        if groups and groups[0][1] - groups[0][0] != self.stride:
+            log.warning("video of %d frames is too short for stride %d; using %d",
+                        trajectories.num_frames, self.stride, groups[0][1] - groups[0][0])
+        sums, counts, infos = score_frame_groups(
+            trajectories, groups, self.estimate, rng, max_points=self.max_points, sampling=self.sampling
+        )
+        per_trajectory, ed = ed_maps_from_scores(trajectories, sums, counts)
+        return RigidityResult(ed=ed, per_trajectory=per_trajectory, triplets=infos)

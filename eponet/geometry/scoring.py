@@ -1,0 +1,184 @@
+"""From per-frame-group rigid models to per-trajectory epipolar distances and per-pixel ED maps.
+
+Shared by the rigidity plugins: each supplies the frame groups (triplets or pairs) and an estimator of the
+rigid-background model of a group; this module samples points, scores every trajectory present in each
+group, averages per trajectory, and paints the result into ``(F, H, W)`` maps.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Callable
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..core.types import MIN_FRAMES, FlowPair, Trajectories
+from .trajectories import (
+    alive_in_frames,
+    fill_from_neighbourhood,
+    paint_trajectory_values,
+    trajectory_ends,
+    trajectory_positions,
+)
+from .triplets import FittedModel
+
+__all__ = [
+    "check_rigidity_inputs",
+    "frame_groups",
+    "score_frame_groups",
+    "ed_maps_from_scores",
+]
+
+log = logging.getLogger(__name__)
+
+
+def check_rigidity_inputs(trajectories: Trajectories, flow: FlowPair | None, views: int) -> None:
+    """Raise :class:`~eponet.core.errors.InputError` (one line) for inputs no rigidity model can use."""
+    f = trajectories.num_frames
+    if f < max(MIN_FRAMES, views):
+        raise InputError(f"rigidity needs at least {max(MIN_FRAMES, views)} frames, got {f}")
+    if flow is not None:
+        if flow.forward.shape[0] != f - 1 or flow.forward.shape[1:3] != trajectories.labels.shape[1:]:
+            raise InputError(
+                f"flow of shape {tuple(flow.forward.shape)} does not match {f} frames of "
+                f"{trajectories.labels.shape[1]}x{trajectories.labels.shape[2]}; expected ({f - 1}, "
+                f"{trajectories.labels.shape[1]}, {trajectories.labels.shape[2]}, 2)"
+            )
+    if not np.isfinite(trajectories.positions).all():
+        raise InputError("trajectory positions contain NaN or inf")
+
+
+def frame_groups(num_frames: int, views: int, stride: int) -> list[tuple[int, ...]]:
+    """Sliding groups ``(t, t + k, ..., t + (views - 1) k)`` for every start ``t`` that fits.
+
+    When the video is too short for the stride, the stride shrinks to the largest that fits (at least 1).
+    """
+    k = max(1, min(stride, (num_frames - 1) // (views - 1)))
+    last = num_frames - 1 - (views - 1) * k
+    return [tuple(t + i * k for i in range(views)) for t in range(last + 1)]
+
+
+def score_frame_groups(
+    trajectories: Trajectories,
+    groups: list[tuple[int, ...]],
+    estimate: Callable[[list[np.ndarray], np.random.Generator], FittedModel],
+    rng: np.random.Generator,
+    *,
+    max_points: int,
+    sampling: str = "guided",
+) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """Fit one model per frame group and accumulate every trajectory's distances.
+
+    For each group, the trajectories present in all its frames are found, a seeded sample of at most
+    ``max_points`` of them is passed to ``estimate``, and the fitted model scores *all* of them. A failed fit
+    (too few points, degenerate data) is logged as a warning and skipped: its trajectories simply have one
+    group fewer in their mean.
+
+    ``sampling="uniform"`` draws the sample uniformly (the paper). ``"guided"`` (guided sampling in the
+    spirit of Tordoff & Murray's guided-MLESAC, 2005) draws trajectory j with weight
+    ``1 / (1 + (D_j / s)^2)``, where ``D_j`` is its mean distance, over the groups already scored, from the
+    most general rigid model fitted there (the epipolar one even where a homography was chosen, so that
+    parallax does not count against a point; weight 1 without history) and ``s`` is three times the median
+    distance of that model's inliers (at least 1 px). Trajectories already found to move independently
+    hardly enter the fit, so an object that grows to cover most of the frame does not capture the
+    background model. Weighted sampling without replacement uses Efraimidis-Spirakis keys ``u^(1/w)``.
+
+    Returns
+    -------
+    sums : float64 (T,)
+        Summed distances in pixels.
+    counts : int32 (T,)
+        Number of scored groups per trajectory.
+    infos : list of dict
+        One JSON-serialisable record per group (frames, points, model diagnostics).
+    """
+    ends = trajectory_ends(trajectories)
+    ordered = bool(np.all(np.diff(trajectories.start) >= 0))  # other builders may number them differently
+    sums = np.zeros(trajectories.count)
+    counts = np.zeros(trajectories.count, np.int32)
+    infos = []
+    if sampling not in ("guided", "uniform"):
+        raise ValueError(f"sampling must be 'guided' or 'uniform', got {sampling!r}")
+    scale = None
+    prior_sums = np.zeros(trajectories.count) if sampling == "guided" else None
+    for frames in groups:
+        ids = alive_in_frames(trajectories, frames[0], frames[-1], ends, births_ordered=ordered)
+        pts = trajectory_positions(trajectories, ids, tuple(frames))  # float32: scored in float32
+        if len(ids) > max_points:
+            if sampling == "guided" and scale is not None:
+                c = counts[ids]
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    prior = np.where(c > 0, prior_sums[ids] / np.maximum(c, 1), 0.0)
+                weight = 1.0 / (1.0 + (prior / scale) ** 2)
+                keys = np.log(rng.random(len(ids))) / weight  # log of u^(1/w): larger is more likely
+                pick = np.sort(np.argpartition(-keys, max_points)[:max_points])
+            else:
+                pick = np.sort(rng.choice(len(ids), max_points, replace=False))
+            sample = [p[pick].astype(np.float64) for p in pts]
+        else:
+            sample = [p.astype(np.float64) for p in pts]
+        model = estimate(sample, rng)
+        info = {"frames": [int(f) for f in frames], "points": int(len(ids)), "sampled": int(len(sample[0]))}
+        info.update(model.info())
+        infos.append(info)
+        if model.kind == "failed":
+            log.warning("frames %s: no rigid model (%s); the group is skipped", list(frames), model.fallback)
+            continue
+        if model.fallback:
+            log.warning("frames %s: %s; using the %s model", list(frames), model.fallback, model.kind)
+        d = model.distance(*pts)
+        good = np.isfinite(d)
+        if not good.all():  # (a point mapped to infinity: leave this group out of its mean)
+            ids, d, pts = ids[good], d[good], [p[good] for p in pts]
+        sums[ids] += d
+        counts[ids] += 1
+        if prior_sums is not None:
+            general = model.general or model
+            dg = d if general is model else general.distance(*pts)
+            prior_sums[ids] += np.where(np.isfinite(dg), dg, 1e6)
+            if general.inliers is not None and general.inliers.any():
+                typical = float(np.median(general.distance(*sample)[general.inliers]))
+                scale = max(3.0 * typical, 1.0) if np.isfinite(typical) else scale
+    return sums, counts, infos
+
+
+def ed_maps_from_scores(
+    trajectories: Trajectories, sums: np.ndarray, counts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-trajectory mean distance and the per-pixel ED maps.
+
+    Every pixel takes the value of the trajectory covering it. Pixels of trajectories with no scored group
+    (too short to span one, or all of their groups failed) take the value of the nearest scored pixel in the
+    same frame (:func:`~eponet.geometry.trajectories.fill_from_neighbourhood`), never 0; such a trajectory's
+    own ``per_trajectory`` value is the one its first pixel received. A frame without any scored pixel takes
+    the median over the video's scored trajectories (0 if none, with a warning).
+
+    Returns
+    -------
+    per_trajectory : float32 (T,)
+    ed : float32 (F, H, W)
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_traj = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan).astype(np.float32)
+    scored = counts > 0
+    if scored.any():
+        fallback = float(np.median(per_traj[scored]))
+    else:
+        log.warning("no trajectory could be scored; ED maps are 0")
+        fallback = 0.0
+    ed = paint_trajectory_values(trajectories.labels, per_traj)
+    for t in range(ed.shape[0]):
+        valid = ~np.isnan(ed[t])
+        if not valid.all():
+            if not valid.any() and scored.any():
+                log.warning("frame %d: no scored trajectory; using the video's median distance", t)
+            ed[t] = fill_from_neighbourhood(ed[t], valid, fallback)
+    missing = np.flatnonzero(~scored)
+    if len(missing):
+        # a trajectory's first position is the pixel it was born on
+        first = trajectories.positions[trajectories.offsets[missing]]
+        x = np.floor(first[:, 0] + 0.5).astype(np.int64)
+        y = np.floor(first[:, 1] + 0.5).astype(np.int64)
+        per_traj[missing] = ed[trajectories.start[missing], y, x]
+    return per_traj, ed

@@ -1,0 +1,90 @@
+"""Motion-net stage ``epo_unet``: the EpO U-Net on (dx, dy, ED) motion images."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from eponet.core.errors import MissingWeights
+from eponet.core.hookspecs import StageSpec, hookimpl
+from eponet.core.params import Param
+from eponet.core.progress import track
+from eponet.weights import resolve_weights
+
+__all__ = ["EpoUNetStage", "load_unet"]
+
+log = logging.getLogger(__name__)
+
+
+def load_unet(weights: str, sha256: str | None = None):
+    """Build an :class:`~eponet.nets.EpoUNet` from a verified weights file (built-in name or path)."""
+    import torch
+
+    from eponet.nets import EpoUNet
+
+    path, digest = resolve_weights(weights, sha256=sha256, kind="motion_net")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+        model = EpoUNet(**checkpoint["config"])
+        model.load_state_dict(checkpoint["state_dict"])
+    except Exception as exc:
+        raise MissingWeights(f"{path}: not EpO U-Net weights ({exc.__class__.__name__}: {str(exc).splitlines()[0]})") from None
+    return model.eval(), digest
+
+
+def _device(name: str):
+    import torch
+
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+class EpoUNetStage:
+    """Per-frame inference of the U-Net, in batches, on CPU or GPU."""
+
+    def __init__(self, *, weights: str = "epo-davis", sha256: str | None = None, batch_size: int = 8, device: str = "auto"):
+        self.model, self.sha256 = load_unet(weights, sha256)
+        self.batch_size = batch_size
+        self.device = _device(device)
+
+    def predict(self, motion_images: np.ndarray) -> np.ndarray:
+        import torch
+
+        model = self.model.to(self.device).to(memory_format=torch.channels_last)
+        out = np.empty((motion_images.shape[0],) + motion_images.shape[2:], np.float32)
+        with torch.inference_mode():
+            starts = range(0, len(motion_images), self.batch_size)
+            for start in track(starts, desc="motion net", total=len(starts)):
+                batch = torch.from_numpy(motion_images[start : start + self.batch_size]).to(self.device)
+                batch = model.select_inputs(batch).contiguous(memory_format=torch.channels_last)
+                out[start : start + len(batch)] = torch.sigmoid(model(batch))[:, 0].float().cpu().numpy()
+        return out
+
+
+def _check(params: dict) -> list[str]:
+    try:
+        resolve_weights(params["weights"], sha256=params.get("sha256"), kind="motion_net")
+    except MissingWeights as exc:
+        return [f"weights: {exc}"]
+    return []
+
+
+@hookimpl
+def eponet_stages():
+    return [
+        StageSpec(
+            kind="motion_net",
+            name="epo_unet",
+            factory=EpoUNetStage,
+            params=(
+                Param("weights", "weights", "epo-davis", "built-in weights name or a weights file (.pt from eponet train)"),
+                Param("sha256", "str", None, "expected sha256 of a weights file (checked before loading)", nullable=True),
+                Param("batch_size", "int", 8, "frames per inference batch", minimum=1),
+                Param("device", "choice", "auto", "where to run: auto = GPU when available", choices=("auto", "cpu", "cuda")),
+            ),
+            doc="EpO U-Net motion network on (dx, dy, ED) motion images",
+            check=_check,
+        )
+    ]

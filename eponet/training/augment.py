@@ -1,0 +1,62 @@
+"""Augmentation of motion-image batches: random crops, horizontal flips, and input-dropout of the ED channel."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["InputDropout", "random_crop_flip"]
+
+ED_CHANNEL = 2
+
+
+@dataclass(frozen=True)
+class InputDropout:
+    """Input-dropout of the paper (sections 4.2 and 6.1): for a fraction ``probability`` of the training samples
+    the ED channel is replaced, so the network learns to fall back on flow where ED is wrong.
+
+    During the first ``zero_epochs`` epochs the replaced ED is all zeros; afterwards it is ``then``:
+    ``zero`` (zeros), ``noise`` (zeros plus Gaussian noise of std ``noise_std``, clipped at 0) or ``random``
+    (uniform values in [0, 1], the range of normalised ED). Flow channels are never touched.
+    """
+
+    probability: float = 0.2
+    zero_epochs: int = 10
+    then: str = "noise"
+    noise_std: float = 0.05
+
+    def apply(self, batch: np.ndarray, epoch: int, rng: np.random.Generator) -> np.ndarray:
+        """Return a copy of motion images ``(B, 3, H, W)`` with the ED channel replaced in the chosen samples,
+        and the boolean ``(B,)`` selection as a second value."""
+        batch = batch.copy()
+        chosen = rng.random(len(batch)) < self.probability
+        count = int(chosen.sum())
+        if count:
+            shape = (count,) + batch.shape[2:]
+            mode = "zero" if epoch < self.zero_epochs else self.then
+            if mode == "zero":
+                replacement = np.zeros(shape, batch.dtype)
+            elif mode == "noise":
+                replacement = np.clip(rng.normal(0.0, self.noise_std, shape), 0, None).astype(batch.dtype)
+            else:
+                replacement = rng.random(shape).astype(batch.dtype)
+            batch[chosen, ED_CHANNEL] = replacement
+        return batch, chosen
+
+
+def random_crop_flip(images: np.ndarray, masks: np.ndarray, crop: tuple[int, int] | None, flip: bool,
+                     rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Crop motion images ``(3, H, W)`` and the mask ``(H, W)`` to ``crop`` ``(h, w)`` at a random place and flip
+    both left-right with probability 1/2 (negating dx, the horizontal flow)."""
+    height, width = masks.shape
+    if crop is not None:
+        ch, cw = min(crop[0], height), min(crop[1], width)
+        y = int(rng.integers(0, height - ch + 1))
+        x = int(rng.integers(0, width - cw + 1))
+        images, masks = images[:, y : y + ch, x : x + cw], masks[y : y + ch, x : x + cw]
+    if flip and rng.random() < 0.5:
+        images = images[:, :, ::-1].copy()
+        images[0] = -images[0]
+        masks = masks[:, ::-1]
+    return np.ascontiguousarray(images), np.ascontiguousarray(masks)

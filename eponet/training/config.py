@@ -1,0 +1,219 @@
+"""Training specs (YAML): validated as a whole, every problem reported with its YAML path."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from eponet.core.errors import SpecError
+from eponet.core.params import Param, validate_params
+from eponet.core.spec import apply_overrides, default_cache_dir, parse_spec
+from eponet.core.registry import nearest
+
+__all__ = ["TrainConfig", "Phase", "DataSource", "load_train_config", "parse_train_config"]
+
+TOP_LEVEL = ("task", "seed", "model", "geometry", "phases", "validation", "optimizer", "input_dropout", "augment",
+             "output", "cache", "device")
+
+_MODEL = (
+    Param("inputs", "choice", "ed+flow", "input modality", choices=("ed+flow", "flow", "ed")),
+    Param("depth", "int", 4, "number of encoder (and decoder) blocks", minimum=2, maximum=4),
+    Param("widths", "list", [16, 32, 64, 128], "channels of the encoder blocks, shallow to deep"),
+    Param("head_channels", "int", 128, "channels before the 1x1 classifier (128 in the paper)", minimum=1),
+)
+_OPTIMIZER = (
+    Param("name", "choice", "sgd", "optimiser", choices=("sgd", "adam", "adamw", "rmsprop")),
+    Param("lr", "float", 1e-3, "learning rate", minimum=0.0, exclusive_min=True),
+    Param("momentum", "float", 0.9, "momentum (sgd, rmsprop)", minimum=0.0, maximum=1.0),
+    Param("weight_decay", "float", 5e-3, "weight decay", minimum=0.0),
+    Param("batch_size", "int", 12, "frames per batch", minimum=1),
+    Param("step_epochs", "int", 5, "multiply the learning rate by gamma every this many epochs of a phase", minimum=1),
+    Param("gamma", "float", 0.1, "learning-rate decay factor", minimum=0.0, maximum=1.0, exclusive_min=True),
+)
+_DROPOUT = (
+    Param("probability", "float", 0.2, "fraction of training samples whose ED channel is replaced", minimum=0.0, maximum=1.0),
+    Param("zero_epochs", "int", 3, "epochs (counted over all phases) in which the replacement is zeros", minimum=0),
+    Param("then", "choice", "noise", "replacement afterwards", choices=("zero", "noise", "random")),
+    Param("noise_std", "float", 0.05, "std of the Gaussian noise (normalised ED units)", minimum=0.0),
+)
+_AUGMENT = (
+    Param("crop", "list", [224, 384], "random crop size [height, width] (null: whole frames)", nullable=True),
+    Param("flip", "bool", True, "random left-right flips"),
+)
+_OUTPUT = (Param("dir", "path", None, "folder for checkpoints, weights, curves and the model card", required=True),)
+_CACHE = (
+    Param("enabled", "bool", True, "reuse cached flow, trajectories and ED"),
+    Param("dir", "path", None, "cache folder (default $EPONET_CACHE or ~/.cache/eponet)", nullable=True),
+)
+_DAVIS = (
+    Param("root", "path", None, "DAVIS-layout root (JPEGImages/<resolution>/<seq>/, Annotations/...)", required=True),
+    Param("resolution", "str", "240p", "frames resolution folder"),
+    Param("sequences", "list", None, "sequences to use (default: all)", nullable=True),
+    Param("exclude", "list", [], "sequences to leave out"),
+)
+_RBSF = (
+    Param("dir", "path", None, "where the generated data set is written (reused when present)", required=True),
+    Param("sequences", "int", 40, "number of clips", minimum=1),
+    Param("frames", "int", 30, "frames per clip", minimum=3),
+    Param("size", "str", "427x240", "frame size WxH"),
+    Param("seed", "int", 0, "generator seed", minimum=0),
+)
+_PHASE = (
+    Param("name", "str", None, "phase name", required=True),
+    Param("epochs", "int", 10, "epochs of this phase", minimum=1),
+    Param("samples_per_epoch", "int", None, "frames drawn per epoch (default: every frame once)", minimum=1, nullable=True),
+)
+
+
+@dataclass
+class DataSource:
+    kind: str  # "davis" or "rbsf"
+    options: dict
+
+
+@dataclass
+class Phase:
+    name: str
+    data: DataSource
+    epochs: int
+    samples_per_epoch: int | None = None
+
+
+@dataclass
+class TrainConfig:
+    task: str
+    seed: int
+    model: dict
+    geometry: Any  # eponet.core.spec.Spec of the geometry stages
+    phases: list[Phase]
+    validation: DataSource | None
+    optimizer: dict
+    input_dropout: dict
+    augment: dict
+    output_dir: Path
+    cache_enabled: bool = True
+    cache_dir: Path = field(default_factory=default_cache_dir)
+    device: str = "auto"
+    file: str | None = None
+    document: dict = field(default_factory=dict)
+
+
+def load_train_config(path: str | Path, overrides: list[str] = ()) -> TrainConfig:
+    path = Path(path)
+    try:
+        document = yaml.safe_load(path.read_text()) or {}
+    except OSError as exc:
+        raise SpecError(f"cannot read training spec ({exc.strerror or exc})", file=str(path)) from None
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark
+        raise SpecError(f"line {mark.line + 1}, column {mark.column + 1}: YAML syntax error: {exc.problem}", file=str(path)) from None
+    if not isinstance(document, dict):
+        raise SpecError("expected a mapping", file=str(path))
+    document, overridden = apply_overrides(document, overrides)
+    return parse_train_config(document, base_dir=path.resolve().parent, overridden=overridden, file=str(path))
+
+
+def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] = frozenset(), file: str | None = None) -> TrainConfig:
+    problems: list[str] = []
+
+    def resolve(key: str, value):
+        if value is None:
+            return None
+        value = Path(str(value)).expanduser()
+        return Path(os.path.normpath(value if value.is_absolute() else (Path.cwd() if key in overridden else base_dir) / value))
+
+    for key in document:
+        if key not in TOP_LEVEL:
+            hint = nearest(key, list(TOP_LEVEL))
+            problems.append(f"{key}: unknown top-level key{f' (did you mean {hint!r}?)' if hint else ''}; known: {', '.join(TOP_LEVEL)}")
+    task = document.get("task", "motion_net")
+    if task != "motion_net":
+        problems.append(f"task: expected 'motion_net', got {task!r}")
+    seed = document.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        problems.append(f"seed: expected a non-negative integer, got {seed!r}")
+
+    def section(name: str, schema) -> dict:
+        raw = document.get(name) or {}
+        if not isinstance(raw, dict):
+            problems.append(f"{name}: expected a mapping, got {raw!r}")
+            raw = {}
+        values, found = validate_params(raw, schema, name)
+        problems.extend(found)
+        return values
+
+    model = section("model", _MODEL)
+    widths = model.get("widths")
+    if not (isinstance(widths, list) and all(isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in widths)
+            and len(widths) >= model.get("depth", 4)):
+        problems.append(f"model.widths: expected a list of at least depth={model.get('depth')} positive integers, got {widths!r}")
+    optimizer = section("optimizer", _OPTIMIZER)
+    dropout = section("input_dropout", _DROPOUT)
+    augment = section("augment", _AUGMENT)
+    crop = augment.get("crop")
+    if crop is not None and not (isinstance(crop, list) and len(crop) == 2 and all(isinstance(c, int) and c >= 16 for c in crop)):
+        problems.append(f"augment.crop: expected [height, width] of integers >= 16 or null, got {crop!r}")
+    output = section("output", _OUTPUT)
+    cache = section("cache", _CACHE)
+    device = document.get("device", "auto")
+    if device not in ("auto", "cpu", "cuda"):
+        problems.append(f"device: expected one of 'auto', 'cpu', 'cuda', got {device!r}")
+
+    def data_source(raw, path: str) -> DataSource | None:
+        if not isinstance(raw, dict) or len(raw) != 1 or next(iter(raw)) not in ("davis", "rbsf"):
+            problems.append(f"{path}: expected {{davis: {{root: ...}}}} or {{rbsf: {{dir: ...}}}}, got {raw!r}")
+            return None
+        kind, options = next(iter(raw.items()))
+        values, found = validate_params(options or {}, _DAVIS if kind == "davis" else _RBSF, f"{path}.{kind}")
+        problems.extend(found)
+        key = "root" if kind == "davis" else "dir"
+        values[key] = resolve(f"{path}.{kind}.{key}", values.get(key))
+        if kind == "davis" and values[key] is not None and not (values[key] / "JPEGImages").is_dir():
+            problems.append(f"{path}.davis.root: {values[key]} is not a DAVIS-layout root (no JPEGImages/)")
+        return DataSource(kind, values)
+
+    phases: list[Phase] = []
+    raw_phases = document.get("phases")
+    if not isinstance(raw_phases, list) or not raw_phases:
+        problems.append("phases: expected a list of phases like [{name: davis, data: {davis: {root: ...}}, epochs: 10}]")
+        raw_phases = []
+    for i, raw in enumerate(raw_phases):
+        path = f"phases[{i}]"
+        if not isinstance(raw, dict):
+            problems.append(f"{path}: expected a mapping, got {raw!r}")
+            continue
+        values, found = validate_params({k: v for k, v in raw.items() if k != "data"}, _PHASE, path)
+        problems.extend(found)
+        source = data_source(raw.get("data"), f"{path}.data")
+        if source is not None and not found:
+            phases.append(Phase(values["name"], source, values["epochs"], values["samples_per_epoch"]))
+    validation = data_source(document["validation"], "validation") if document.get("validation") is not None else None
+
+    geometry_doc = document.get("geometry") or {}
+    geometry = None
+    if not isinstance(geometry_doc, dict):
+        problems.append("geometry: expected {stages: {...}, scale: 1.0}")
+    else:
+        unknown = set(geometry_doc) - {"stages", "scale"}
+        problems.extend(f"geometry.{k}: unknown key; known: stages, scale" for k in sorted(unknown))
+        try:
+            geometry = parse_spec(
+                {"preset": "geometry", "input": {"path": str(base_dir), "scale": geometry_doc.get("scale", 1.0)},
+                 "stages": geometry_doc.get("stages") or {}, "output": {"dir": str(base_dir), "save": []},
+                 "cache": {"enabled": cache["enabled"], "dir": str(cache["dir"]) if cache["dir"] else None},
+                 "seed": seed if isinstance(seed, int) else 0},
+                base_dir=base_dir)
+        except SpecError as exc:
+            problems.extend(f"geometry.{p.replace('input.', '')}" for p in exc.problems)
+    if problems:
+        raise SpecError(problems, file=file)
+    return TrainConfig(
+        task=task, seed=seed, model=model, geometry=geometry, phases=phases, validation=validation,
+        optimizer=optimizer, input_dropout=dropout, augment=augment, output_dir=resolve("output.dir", output["dir"]),
+        cache_enabled=cache["enabled"], cache_dir=resolve("cache.dir", cache["dir"]) or default_cache_dir(),
+        device=device, file=file, document=document,
+    )

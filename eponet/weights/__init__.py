@@ -1,0 +1,71 @@
+"""Pretrained weights as data: a catalogue of built-in files (name, file, sha256), verified before loading."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from eponet.core.errors import MissingWeights
+
+__all__ = ["WEIGHTS_DIR", "BuiltinWeights", "builtin_weights", "sha256_of", "resolve_weights"]
+
+WEIGHTS_DIR = Path(__file__).resolve().parent
+
+
+@dataclass(frozen=True)
+class BuiltinWeights:
+    name: str
+    file: Path
+    sha256: str
+    kind: str
+    description: str = ""
+
+
+def builtin_weights() -> dict[str, BuiltinWeights]:
+    """The catalogue in ``eponet/weights/catalog.yaml``."""
+    entries = yaml.safe_load((WEIGHTS_DIR / "catalog.yaml").read_text()) or {}
+    return {
+        name: BuiltinWeights(name, WEIGHTS_DIR / e["file"], e["sha256"], e["kind"], e.get("description", ""))
+        for name, e in (entries.get("weights") or {}).items()
+    }
+
+
+def sha256_of(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def resolve_weights(name_or_path: str, *, sha256: str | None = None, kind: str | None = None) -> tuple[Path, str]:
+    """The verified file behind a built-in name or a path, and its sha256.
+
+    A built-in name is checked against the catalogue's checksum; a path against ``sha256`` when given.
+    Raises :class:`MissingWeights` (one line, naming the file) when the file is missing, unreadable or fails
+    its checksum.
+    """
+    catalogue = builtin_weights()
+    if name_or_path in catalogue:
+        entry = catalogue[name_or_path]
+        if kind is not None and entry.kind != kind:
+            raise MissingWeights(f"weights {name_or_path!r} are for a {entry.kind} stage, not {kind}")
+        path, expected = entry.file, entry.sha256
+    else:
+        path, expected = Path(name_or_path).expanduser(), sha256
+        if not path.suffix and not path.exists():
+            known = ", ".join(n for n, e in catalogue.items() if kind is None or e.kind == kind) or "none"
+            raise MissingWeights(f"weights {name_or_path!r}: neither a built-in name (built-in: {known}) nor a file")
+    if not path.is_file():
+        raise MissingWeights(f"{path}: weights file not found")
+    try:
+        actual = sha256_of(path)
+    except OSError as exc:
+        raise MissingWeights(f"{path}: cannot read weights ({exc.strerror or exc})") from None
+    if expected and actual != expected.lower():
+        raise MissingWeights(f"{path}: checksum mismatch (sha256 {actual[:12]}..., expected {expected[:12]}...); "
+                             "the file is corrupt or not the expected weights")
+    return path, actual

@@ -1,0 +1,154 @@
+"""Robust fitting and model selection on synthetic triplets with known inliers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from eponet.geometry import (
+    RobustSettings,
+    draw_samples,
+    estimate_pair,
+    estimate_triplet,
+    fit_homographies,
+    fit_trifocal,
+    gric,
+    is_static,
+    ransac_trial_count,
+    robust_sigma2,
+    triplet_sampson_error,
+)
+from tests.geometry.scenes import project, random_points, three_cameras
+
+
+def _triplet(rng, n, kind="general", noise=0.0, outliers=0.0):
+    cams = three_cameras(kind)
+    x = random_points(rng, n)
+    views = [project(p, x) for p in cams]
+    views = [v + rng.normal(0, noise, v.shape) for v in views] if noise else views
+    bad = np.zeros(n, bool)
+    if outliers:
+        bad[rng.choice(n, int(outliers * n), replace=False)] = True
+        for v in views[1:]:
+            v[bad] += rng.uniform(-15, 15, (bad.sum(), 2))  # independent motion of 0-20 px
+    return views, bad
+
+
+def test_trial_count_formula():
+    # [HZ] eq. 4.18 with s = 6, p = 0.99
+    assert ransac_trial_count(0.8, 6, 0.99) == 16
+    assert ransac_trial_count(0.5, 6, 0.99) == 293
+    assert ransac_trial_count(1.0, 6, 0.99) == 1
+    assert ransac_trial_count(0.0, 6, 0.99) > 10**6
+
+
+def test_draw_samples_distinct_and_seeded():
+    a = draw_samples(np.random.default_rng(0), 50, 6, 200)
+    b = draw_samples(np.random.default_rng(0), 50, 6, 200)
+    np.testing.assert_array_equal(a, b)
+    assert all(len(set(row)) == 6 for row in a)
+    assert draw_samples(np.random.default_rng(0), 7, 6, 10).max() < 7
+    with pytest.raises(ValueError):
+        draw_samples(np.random.default_rng(0), 5, 6, 1)
+
+
+def test_robust_sigma_ignores_outliers():
+    rng = np.random.default_rng(1)
+    e2 = 0.5**2 * rng.chisquare(3, 20000)
+    e2[:6000] = 1e4  # 30% gross outliers
+    assert abs(np.sqrt(robust_sigma2(e2, 3)) - 0.5) < 0.1
+
+
+@pytest.mark.parametrize("threshold", [None, 1.0])
+def test_ransac_recovers_inliers_with_40_percent_outliers(threshold):
+    rng = np.random.default_rng(2)
+    (x1, x2, x3), bad = _triplet(rng, 500, noise=0.2, outliers=0.4)
+    fs, e2, trials = fit_trifocal(x1, x2, x3, np.random.default_rng(3), RobustSettings(threshold=threshold))
+    # inliers: within the 95% chi-square(3) bound of the true noise (0.2 px)
+    inl = e2 < 7.81 * 0.2**2 * 1.5
+    recall = (inl & ~bad).sum() / (~bad).sum()
+    precision = (inl & ~bad).sum() / inl.sum()
+    assert recall > 0.95 and precision > 0.97, (recall, precision, trials)
+    # the fitted geometry is correct on the exact points
+    (c1, c2, c3), _ = _triplet(np.random.default_rng(2), 500)
+    assert np.median(np.sqrt(triplet_sampson_error(*fs, c1, c2, c3))) < 0.15
+
+
+def test_gric_prefers_homography_for_rotation_and_trifocal_for_parallax():
+    rng = np.random.default_rng(4)
+    for kind, want in (("rotation", "homography"), ("general", "trifocal")):
+        (x1, x2, x3), _ = _triplet(rng, 800, kind=kind, noise=0.3, outliers=0.15)
+        model = estimate_triplet(x1, x2, x3, np.random.default_rng(5), degeneracy="gric")
+        assert model.kind == want, (kind, model.info())
+        # with degeneracy "none" the trifocal model is always used (the paper)
+        assert estimate_triplet(x1, x2, x3, np.random.default_rng(5), degeneracy="none").kind == "trifocal"
+
+
+def test_homography_model_separates_moving_points_under_rotation():
+    rng = np.random.default_rng(6)
+    (x1, x2, x3), bad = _triplet(rng, 600, kind="rotation", noise=0.2, outliers=0.2)
+    model = estimate_triplet(x1, x2, x3, np.random.default_rng(7))
+    d = model.distance(x1, x2, x3)
+    assert model.kind == "homography"
+    # six transfer distances of points with 0.2 px noise: each ~ 0.2 sqrt(2) sqrt(pi/2) = 0.35 px on average
+    expected = 6 * 0.2 * np.sqrt(2) * np.sqrt(np.pi / 2)
+    assert np.median(d[~bad]) < 1.2 * expected and np.percentile(d[bad], 10) > 2 * expected
+
+
+def test_gric_values():
+    e2 = np.zeros(10)
+    assert gric(e2, 1.0, r=6, d=3, k=18) == pytest.approx(np.log(6) * 3 * 10 + np.log(60) * 18)
+    assert gric(np.full(10, 100.0), 1.0, r=6, d=3, k=18) == pytest.approx(10 * 6 + np.log(6) * 30 + np.log(60) * 18)
+
+
+def test_static_camera_gives_zero_distance_on_static_points():
+    rng = np.random.default_rng(8)
+    (x1, x2, x3), _ = _triplet(rng, 400, kind="static")
+    assert np.array_equal(x1, x2) and is_static(x1, x2, x3, threshold=0.25)
+    x2, x3 = x2.copy(), x3.copy()
+    x2[:100] += [2.0, 1.0]  # a moving object, 25% of the points
+    x3[:100] += [4.0, 2.0]
+    model = estimate_triplet(x1, x2, x3, np.random.default_rng(9))
+    assert model.kind == "static"
+    d = model.distance(x1, x2, x3)
+    assert np.all(d[100:] == 0.0) and d[:100].min() > 1.0
+    pair = estimate_pair(x1, x2, np.random.default_rng(9))
+    assert pair.kind == "static"
+    dp = pair.distance(x1, x2)
+    assert np.all(dp[100:] == 0.0) and dp[:100].min() > 1.0
+
+
+def test_too_few_points_fall_back():
+    rng = np.random.default_rng(10)
+    (x1, x2, x3), _ = _triplet(rng, 10)
+    model = estimate_triplet(x1, x2, x3, rng)
+    assert model.kind == "failed" and "too few" in model.fallback
+    assert estimate_pair(x1, x2, rng).kind == "failed"
+
+
+def test_degenerate_points_do_not_crash():
+    rng = np.random.default_rng(11)
+    # every point on one line in every view: no non-degenerate sample exists
+    s = np.linspace(0, 100, 200)
+    x = np.c_[s, 2 * s + 1]
+    model = estimate_triplet(x, x + [1.0, 2.0], x + [2.0, 4.0], rng)
+    assert model.kind in ("failed", "homography", "trifocal")
+    assert model.info()["model"] == model.kind
+
+
+def test_fit_homographies_exact():
+    rng = np.random.default_rng(12)
+    (x1, x2, x3), _ = _triplet(rng, 300, kind="rotation")
+    hs, e2, _ = fit_homographies(x1, x2, x3, rng)
+    assert e2.max() < 1e-12
+
+
+def test_pair_model_selection():
+    rng = np.random.default_rng(13)
+    for kind, want in (("rotation", "homography"), ("general", "fundamental")):
+        (x1, x2, _), bad = _triplet(rng, 800, kind=kind, noise=0.3, outliers=0.15)
+        model = estimate_pair(x1, x2, np.random.default_rng(14), degeneracy="gric")
+        assert model.kind == want, (kind, model.info())
+        d = model.distance(x1, x2)
+        assert np.median(d[~bad]) < 1.5 and np.median(d[bad]) > 3.0
+        assert estimate_pair(x1, x2, np.random.default_rng(14), degeneracy="none").kind == "fundamental"

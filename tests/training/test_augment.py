@@ -1,0 +1,53 @@
+import numpy as np
+
+from eponet.training.augment import InputDropout, random_crop_flip
+
+
+def _batch(n=200):
+    rng = np.random.default_rng(0)
+    return rng.uniform(0.1, 1.0, (n, 3, 6, 8)).astype(np.float32)
+
+
+def test_input_dropout_changes_only_the_ed_channel_of_chosen_samples():
+    batch = _batch()
+    dropout = InputDropout(probability=0.2, zero_epochs=2, then="noise", noise_std=0.05)
+    out, chosen = dropout.apply(batch, epoch=0, rng=np.random.default_rng(1))
+    assert 0.12 < chosen.mean() < 0.28
+    np.testing.assert_array_equal(out[:, :2], batch[:, :2])  # flow untouched everywhere
+    np.testing.assert_array_equal(out[~chosen], batch[~chosen])  # other samples untouched
+    assert (out[chosen, 2] == 0).all()  # early epochs: zeros
+    later, chosen = dropout.apply(batch, epoch=2, rng=np.random.default_rng(1))
+    ed = later[chosen, 2]
+    assert (ed >= 0).all() and 0 < ed.std() < 0.05 and ed.mean() < 0.05  # zeros plus small noise
+    np.testing.assert_array_equal(batch[:, 2], _batch()[:, 2])  # the input is not modified in place
+
+
+def test_input_dropout_random_mode_and_zero_probability():
+    batch = _batch()
+    out, chosen = InputDropout(probability=1.0, zero_epochs=0, then="random").apply(batch, 5, np.random.default_rng(2))
+    assert chosen.all() and 0.45 < out[:, 2].mean() < 0.55 and out[:, 2].min() >= 0 and out[:, 2].max() <= 1
+    out, chosen = InputDropout(probability=0.0).apply(batch, 0, np.random.default_rng(3))
+    assert not chosen.any()
+    np.testing.assert_array_equal(out, batch)
+
+
+def test_flip_negates_horizontal_flow_and_mirrors_everything():
+    images = np.random.default_rng(0).normal(size=(3, 4, 5)).astype(np.float32)
+    mask = (np.arange(20).reshape(4, 5) % 3 == 0).astype(np.uint8)
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        out, m = random_crop_flip(images, mask, None, True, rng)
+        if not np.array_equal(m, mask):
+            np.testing.assert_array_equal(m, mask[:, ::-1])
+            np.testing.assert_array_equal(out[0], -images[0, :, ::-1])
+            np.testing.assert_array_equal(out[1:], images[1:, :, ::-1])
+            return
+    raise AssertionError("no flip in 10 draws")
+
+
+def test_crop_keeps_images_and_mask_aligned():
+    images = np.stack([np.arange(48.0).reshape(6, 8)] * 3).astype(np.float32)
+    mask = np.arange(48).reshape(6, 8)
+    out, m = random_crop_flip(images, mask, (4, 5), False, np.random.default_rng(4))
+    assert out.shape == (3, 4, 5) and m.shape == (4, 5)
+    np.testing.assert_array_equal(out[2], m.astype(np.float32))
