@@ -1,4 +1,5 @@
-"""``python -m eponet.train spec.yaml [--resume] [--set KEY=VALUE ...]``: train the EpO motion network."""
+"""``python -m eponet.train spec.yaml [--resume] [--set KEY=VALUE ...]``: train the network the spec's ``task``
+names (``motion_net``: the EpO motion network; ``fusion``: the EpO+ ConvGRU fusion)."""
 
 from __future__ import annotations
 
@@ -23,11 +24,14 @@ def main(argv: list[str] | None = None) -> int:
     def run(args) -> int:
         from eponet.core.progress import set_quiet
         from eponet.training.config import load_train_config
-        from eponet.training.trainer import MotionNetTrainer
 
         set_quiet(args.quiet)
         config = load_train_config(args.spec, args.overrides)
-        summary = MotionNetTrainer(config).run(resume=args.resume)
+        if config.task == "fusion":
+            from eponet.training.fusion import FusionTrainer as trainer_class
+        else:
+            from eponet.training.trainer import MotionNetTrainer as trainer_class
+        summary = trainer_class(config).run(resume=args.resume)
         if not args.quiet:
             final = summary["final"] or {}
             print(f"trained {summary['epochs']} epochs in {summary['train_seconds']:.0f} s; "

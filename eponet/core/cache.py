@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import importlib.util
 import hashlib
 import json
 import logging
@@ -24,14 +25,28 @@ def array_digest(array: np.ndarray) -> str:
     return digest.hexdigest()
 
 
+#: eponet's algorithm code that every built-in stage may depend on, besides the stage's own module.
+ALGORITHM_CODE = ("geometry", "nets", "core/types.py", "core/imaging.py", "core/motion.py")
+
+
 @functools.lru_cache(maxsize=None)
-def code_fingerprint() -> str:
-    """sha256 over eponet's own Python sources, so that a changed algorithm never reuses stale results
-    (third-party plugins are keyed by their package version instead)."""
+def code_fingerprint(module: str | None = None) -> str:
+    """sha256 over the sources of a built-in stage's module (e.g. ``eponet.plugins.rigidity.trifocal``) and
+    eponet's algorithm code (:data:`ALGORITHM_CODE`), so that a changed algorithm never reuses stale results
+    while edits elsewhere (CLI, training, evaluation) keep the cache. Third-party plugins are keyed by their
+    package version instead."""
     root = Path(__file__).resolve().parent.parent
+    paths = []
+    for name in ALGORITHM_CODE:
+        target = root / name
+        paths += sorted(target.rglob("*.py")) if target.is_dir() else [target]
+    if module:
+        spec = importlib.util.find_spec(module)
+        if spec is not None and spec.origin:
+            paths.append(Path(spec.origin))
     digest = hashlib.sha256()
-    for path in sorted(root.rglob("*.py")):
-        digest.update(str(path.relative_to(root)).encode())
+    for path in paths:
+        digest.update(str(path.relative_to(root) if path.is_relative_to(root) else path.name).encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()
 

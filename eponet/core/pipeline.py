@@ -74,12 +74,7 @@ class Pipeline:
         spec, stages = self.spec, self.stages
         result = SequenceOutputs(video=video)
         input_key = array_digest(video.frames)
-
-        def key_of(kind: str, upstream: str, **extra) -> str:
-            config = spec.stages[kind]
-            code = code_fingerprint() if config.spec.package == "eponet" else None
-            return content_key(stage=kind, plugin=config.plugin, version=config.spec.version, code=code,
-                               params=config.params, upstream=upstream, **extra)
+        key_of = self._key
 
         flow_key = key_of("flow", input_key, stems=video.stems, size=video.size)
         result.flow = self._cached("flow", flow_key, timer, video,
@@ -117,16 +112,35 @@ class Pipeline:
             saliency = self._timed("motion_net", timer, video, lambda: stages["motion_net"].predict(result.motion_images))
             probability = saliency
             if "fusion" in stages:
-                app_key = key_of("appearance", input_key)
-                features = self._cached("appearance", app_key, timer, video,
-                                        lambda: stages["appearance"].features(video),
-                                        lambda f: ({"features": f}, {}), lambda a, m: a["features"])
+                features = self.appearance_features(video, timer)
                 probability = self._timed("fusion", timer, video, lambda: stages["fusion"].fuse(features, saliency))
             result.saliency = np.stack([resize_map(p, video.size) for p in probability]).clip(0, 1)
         if "refiner" in stages:
             frames = video.full_frames if video.full_frames is not None else video.frames
             result.masks = self._timed("refiner", timer, video, lambda: stages["refiner"].refine(frames, result.saliency))
         return result
+
+    def appearance_features(self, video: Video, timer: _Timer | None = None) -> np.ndarray:
+        """The appearance stage's features float32 ``(F, C, h, w)`` of ``video.frames``, through the cache.
+
+        They are stored and returned at float16 precision (relative error <= 2**-11), which halves the cache
+        (a 240p frame's 472 EfficientNet-Lite0 channels take 1.5 MB instead of 3 MB); a cache hit and a fresh
+        computation therefore give the same values.
+        """
+        if "appearance" not in self.stages:
+            raise StageError("stages.appearance: the spec has no appearance stage")
+        key = self._key("appearance", array_digest(video.frames))
+        stored = self._cached("appearance", key, timer or _Timer(), video,
+                              lambda: self.stages["appearance"].features(video).astype(np.float16),
+                              lambda f: ({"features": f}, {}), lambda a, m: a["features"])
+        return stored.astype(np.float32)
+
+    def _key(self, kind: str, upstream: str, **extra) -> str:
+        """Cache key of stage ``kind``: its plugin, version, code fingerprint, parameters and upstream key."""
+        config = self.spec.stages[kind]
+        code = code_fingerprint(config.spec.factory.__module__) if config.spec.package == "eponet" else None
+        return content_key(stage=kind, plugin=config.plugin, version=config.spec.version, code=code,
+                           params=config.params, upstream=upstream, **extra)
 
     def _timed(self, kind: str, timer: _Timer, video: Video, compute):
         start = time.perf_counter()

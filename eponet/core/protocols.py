@@ -61,7 +61,8 @@ class MotionNet(Protocol):
 @runtime_checkable
 class AppearanceBackbone(Protocol):
     def features(self, video: Video) -> np.ndarray:
-        """Appearance features float32 ``(F, C, h, w)`` of ``video.frames``."""
+        """Appearance features float32 ``(F, C, h, w)`` of ``video.frames`` on a grid ``h x w`` of the stage's
+        choosing (e.g. stride 8); ``C`` may be 0 (no appearance: the shape still gives the fusion its grid)."""
 
 
 @runtime_checkable

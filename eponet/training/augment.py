@@ -1,4 +1,5 @@
-"""Augmentation of motion-image batches: random crops, horizontal flips, and input-dropout of the ED channel."""
+"""Augmentation: random crops, horizontal flips and input-dropout, of motion-image batches (ED channel) and of
+fusion clips (the motion map)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["InputDropout", "random_crop_flip"]
+__all__ = ["InputDropout", "random_crop_flip", "random_clip_crop_flip", "drop_motion_maps"]
 
 ED_CHANNEL = 2
 
@@ -60,3 +61,37 @@ def random_crop_flip(images: np.ndarray, masks: np.ndarray, crop: tuple[int, int
         images[0] = -images[0]
         masks = masks[:, ::-1]
     return np.ascontiguousarray(images), np.ascontiguousarray(masks)
+
+
+def random_clip_crop_flip(features: np.ndarray, saliency: np.ndarray, masks: np.ndarray, crop: tuple[int, int] | None,
+                          flip: bool, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Crop and flip a fusion clip, the same way on every frame: features ``(T, C, h, w)`` on the feature grid,
+    motion saliency ``(T, H, W)`` and masks ``(T, H, W)`` at the frame size.
+
+    ``crop`` ``(height, width)`` is in frame pixels; the crop is chosen on the feature grid (the nearest whole
+    number of cells) and the frame-size maps are cut at the matching pixels, cell ``i`` covering pixels
+    ``[i * H / h, (i + 1) * H / h)`` as in the fusion network's resizing. Flips mirror all three left-right
+    (the cached features are mirrored, not recomputed on mirrored frames).
+    """
+    cells, pixels = features.shape[-2:], masks.shape[-2:]
+    if crop is not None:
+        box = []
+        for c, size, full in zip(crop, cells, pixels):
+            n = min(size, max(1, round(c * size / full)))
+            first = int(rng.integers(0, size - n + 1))
+            box.append((first, first + n, round(first * full / size), min(full, round((first + n) * full / size))))
+        (y0, y1, py0, py1), (x0, x1, px0, px1) = box
+        features = features[..., y0:y1, x0:x1]
+        saliency, masks = saliency[..., py0:py1, px0:px1], masks[..., py0:py1, px0:px1]
+    if flip and rng.random() < 0.5:
+        features, saliency, masks = features[..., ::-1], saliency[..., ::-1], masks[..., ::-1]
+    return tuple(np.ascontiguousarray(a) for a in (features, saliency, masks))
+
+
+def drop_motion_maps(saliency: np.ndarray, probability: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Input-dropout of the fusion (paper section 5.2): a copy of motion saliency maps ``(..., H, W)`` with each
+    map replaced by zeros with ``probability``, and the boolean selection ``saliency.shape[:-2]``."""
+    chosen = rng.random(saliency.shape[:-2]) < probability
+    saliency = saliency.copy()
+    saliency[chosen] = 0
+    return saliency, chosen

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -14,10 +14,13 @@ from eponet.core.params import Param, validate_params
 from eponet.core.spec import apply_overrides, default_cache_dir, parse_spec
 from eponet.core.registry import nearest
 
-__all__ = ["TrainConfig", "Phase", "DataSource", "load_train_config", "parse_train_config"]
+__all__ = ["TASKS", "TrainConfig", "Phase", "DataSource", "load_train_config", "parse_train_config"]
 
+#: What ``eponet train`` can train: the EpO motion network, or the EpO+ fusion on top of a trained one.
+TASKS = ("motion_net", "fusion")
 TOP_LEVEL = ("task", "seed", "model", "geometry", "phases", "validation", "optimizer", "input_dropout", "augment",
-             "output", "cache", "device")
+             "output", "cache", "device", "threads")
+FUSION_TOP_LEVEL = TOP_LEVEL + ("motion_net", "appearance", "clips")
 
 _MODEL = (
     Param("inputs", "choice", "ed+flow", "input modality", choices=("ed+flow", "flow", "ed")),
@@ -62,6 +65,43 @@ _RBSF = (
     Param("size", "str", "427x240", "frame size WxH"),
     Param("seed", "int", 0, "generator seed", minimum=0),
 )
+# -- task: fusion (EpO+, paper sections 4.3 and 5.2) --------------------------------------------------------
+_FUSION_MODEL = (
+    Param("bottleneck", "int", 128, "channels of the 1x1 bottleneck on the appearance features (128 in the paper)",
+          minimum=1),
+    Param("hidden", "int", 64, "ConvGRU state channels (not given in the paper)", minimum=1),
+    Param("kernel_size", "int", 3, "ConvGRU kernel size (odd; not given in the paper)", minimum=1),
+)
+_FUSION_OPTIMIZER = (
+    Param("name", "choice", "rmsprop", "optimiser (the paper: RMSProp)", choices=("rmsprop", "sgd", "adam", "adamw")),
+    Param("lr", "float", 1e-3, "initial learning rate", minimum=0.0, exclusive_min=True),
+    Param("schedule", "choice", "linear", "learning-rate decay: linear = lr * (1 - epoch / epochs), decreased every "
+          "epoch (the paper's 'factor epoch/50'); step = x gamma every step_epochs; constant",
+          choices=("linear", "step", "constant")),
+    Param("step_epochs", "int", 5, "step schedule: epochs between decays", minimum=1),
+    Param("gamma", "float", 0.1, "step schedule: decay factor", minimum=0.0, maximum=1.0, exclusive_min=True),
+    Param("momentum", "float", 0.0, "momentum (sgd, rmsprop)", minimum=0.0, maximum=1.0),
+    Param("weight_decay", "float", 0.0, "weight decay", minimum=0.0),
+    Param("batch_size", "int", 1, "clips per optimisation step", minimum=1),
+    Param("clip_gradients", "float", 50.0, "clip every gradient element to [-value, value] (the paper: 50); null: "
+          "no clipping", minimum=0.0, exclusive_min=True, nullable=True),
+)
+_CLIPS = (
+    Param("length", "int", 12, "frames per training clip, back-propagated through time (the paper: 12)", minimum=2),
+)
+_FUSION_DROPOUT = (
+    Param("probability", "float", 0.2, "fraction of training frames whose motion map is replaced by zeros",
+          minimum=0.0, maximum=1.0),
+    Param("sequences", "list", None, "only these sequences (the paper: fast motion, dynamic background); "
+          "null: all", nullable=True),
+)
+_FUSION_STAGES = {"motion_net": "epo_unet", "appearance": "efficientnet_lite0"}
+_SCHEMAS = {
+    "motion_net": {"model": _MODEL, "optimizer": _OPTIMIZER, "input_dropout": _DROPOUT},
+    "fusion": {"model": _FUSION_MODEL, "optimizer": _FUSION_OPTIMIZER, "input_dropout": _FUSION_DROPOUT,
+               "clips": _CLIPS},
+}
+
 _PHASE = (
     Param("name", "str", None, "phase name", required=True),
     Param("epochs", "int", 10, "epochs of this phase", minimum=1),
@@ -85,6 +125,10 @@ class Phase:
 
 @dataclass
 class TrainConfig:
+    """A validated training spec. ``geometry`` is the pipeline spec of the stages that make the training data
+    (flow, trajectories, rigidity; for ``task: fusion`` also the appearance stage); ``stages`` holds, for
+    ``task: fusion``, the validated ``motion_net`` and ``appearance`` stage configurations."""
+
     task: str
     seed: int
     model: dict
@@ -98,8 +142,11 @@ class TrainConfig:
     cache_enabled: bool = True
     cache_dir: Path = field(default_factory=default_cache_dir)
     device: str = "auto"
+    threads: int | None = None
     file: str | None = None
     document: dict = field(default_factory=dict)
+    stages: dict = field(default_factory=dict)
+    clips: dict = field(default_factory=dict)
 
 
 def load_train_config(path: str | Path, overrides: list[str] = ()) -> TrainConfig:
@@ -126,13 +173,15 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
         value = Path(str(value)).expanduser()
         return Path(os.path.normpath(value if value.is_absolute() else (Path.cwd() if key in overridden else base_dir) / value))
 
-    for key in document:
-        if key not in TOP_LEVEL:
-            hint = nearest(key, list(TOP_LEVEL))
-            problems.append(f"{key}: unknown top-level key{f' (did you mean {hint!r}?)' if hint else ''}; known: {', '.join(TOP_LEVEL)}")
     task = document.get("task", "motion_net")
-    if task != "motion_net":
-        problems.append(f"task: expected 'motion_net', got {task!r}")
+    if task not in TASKS:
+        problems.append(f"task: expected one of {', '.join(repr(t) for t in TASKS)}, got {task!r}")
+        task = "motion_net"
+    known = FUSION_TOP_LEVEL if task == "fusion" else TOP_LEVEL
+    for key in document:
+        if key not in known:
+            hint = nearest(key, list(known))
+            problems.append(f"{key}: unknown top-level key{f' (did you mean {hint!r}?)' if hint else ''}; known: {', '.join(known)}")
     seed = document.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         problems.append(f"seed: expected a non-negative integer, got {seed!r}")
@@ -146,13 +195,18 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
         problems.extend(found)
         return values
 
-    model = section("model", _MODEL)
-    widths = model.get("widths")
-    if not (isinstance(widths, list) and all(isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in widths)
-            and len(widths) >= model.get("depth", 4)):
-        problems.append(f"model.widths: expected a list of at least depth={model.get('depth')} positive integers, got {widths!r}")
-    optimizer = section("optimizer", _OPTIMIZER)
-    dropout = section("input_dropout", _DROPOUT)
+    schemas = _SCHEMAS[task]
+    model = section("model", schemas["model"])
+    if task == "motion_net":
+        widths = model.get("widths")
+        if not (isinstance(widths, list) and all(isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in widths)
+                and len(widths) >= model.get("depth", 4)):
+            problems.append(f"model.widths: expected a list of at least depth={model.get('depth')} positive integers, got {widths!r}")
+    elif isinstance(model.get("kernel_size"), int) and model["kernel_size"] % 2 == 0:
+        problems.append(f"model.kernel_size: expected an odd integer, got {model['kernel_size']}")
+    optimizer = section("optimizer", schemas["optimizer"])
+    dropout = section("input_dropout", schemas["input_dropout"])
+    clips = section("clips", schemas["clips"]) if task == "fusion" else {}
     augment = section("augment", _AUGMENT)
     crop = augment.get("crop")
     if crop is not None and not (isinstance(crop, list) and len(crop) == 2 and all(isinstance(c, int) and c >= 16 for c in crop)):
@@ -162,12 +216,18 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
     device = document.get("device", "auto")
     if device not in ("auto", "cpu", "cuda"):
         problems.append(f"device: expected one of 'auto', 'cpu', 'cuda', got {device!r}")
+    threads = document.get("threads")
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        problems.append(f"threads: expected a positive integer or null (all cores), got {threads!r}")
 
     def data_source(raw, path: str) -> DataSource | None:
         if not isinstance(raw, dict) or len(raw) != 1 or next(iter(raw)) not in ("davis", "rbsf"):
             problems.append(f"{path}: expected {{davis: {{root: ...}}}} or {{rbsf: {{dir: ...}}}}, got {raw!r}")
             return None
         kind, options = next(iter(raw.items()))
+        if task == "fusion" and kind != "davis":
+            problems.append(f"{path}: task fusion trains on DAVIS-layout data ({{davis: {{root: ...}}}}), got {kind}")
+            return None
         values, found = validate_params(options or {}, _DAVIS if kind == "davis" else _RBSF, f"{path}.{kind}")
         problems.extend(found)
         key = "root" if kind == "davis" else "dir"
@@ -195,25 +255,42 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
 
     geometry_doc = document.get("geometry") or {}
     geometry = None
+    stages = {}
+    extra_stages = {}  # task fusion: motion_net and appearance, validated with the geometry stages
+    for kind, default in _FUSION_STAGES.items() if task == "fusion" else ():
+        raw = document.get(kind) or {}
+        if not isinstance(raw, dict):
+            problems.append(f"{kind}: expected a mapping like {{plugin: {default}, ...}}, got {raw!r}")
+            raw = {}
+        extra_stages[kind] = {"plugin": default, **raw}
     if not isinstance(geometry_doc, dict):
         problems.append("geometry: expected {stages: {...}, scale: 1.0}")
     else:
         unknown = set(geometry_doc) - {"stages", "scale"}
         problems.extend(f"geometry.{k}: unknown key; known: stages, scale" for k in sorted(unknown))
+        stage_doc = geometry_doc.get("stages") or {}
+        if isinstance(stage_doc, dict) and extra_stages:
+            stage_doc = {k: v for k, v in stage_doc.items() if k not in extra_stages} | extra_stages
         try:
             geometry = parse_spec(
                 {"preset": "geometry", "input": {"path": str(base_dir), "scale": geometry_doc.get("scale", 1.0)},
-                 "stages": geometry_doc.get("stages") or {}, "output": {"dir": str(base_dir), "save": []},
+                 "stages": stage_doc, "output": {"dir": str(base_dir), "save": []},
                  "cache": {"enabled": cache["enabled"], "dir": str(cache["dir"]) if cache["dir"] else None},
                  "seed": seed if isinstance(seed, int) else 0},
-                base_dir=base_dir)
+                base_dir=base_dir, overridden={f"stages.{k}" for k in overridden if k.split(".")[0] in extra_stages})
         except SpecError as exc:
-            problems.extend(f"geometry.{p.replace('input.', '')}" for p in exc.problems)
+            for p in exc.problems:
+                kind = p.split(".")[1].split(":")[0] if p.startswith("stages.") else None
+                problems.append(p[len("stages."):] if kind in extra_stages else f"geometry.{p.replace('input.', '')}")
+        if geometry is not None and extra_stages:
+            stages = {kind: geometry.stages[kind] for kind in extra_stages}
+            # the data pipeline keeps the appearance stage (its features are cached like the geometry's)
+            geometry = replace(geometry, stages={k: v for k, v in geometry.stages.items() if k != "motion_net"})
     if problems:
         raise SpecError(problems, file=file)
     return TrainConfig(
         task=task, seed=seed, model=model, geometry=geometry, phases=phases, validation=validation,
         optimizer=optimizer, input_dropout=dropout, augment=augment, output_dir=resolve("output.dir", output["dir"]),
         cache_enabled=cache["enabled"], cache_dir=resolve("cache.dir", cache["dir"]) or default_cache_dir(),
-        device=device, file=file, document=document,
+        device=device, threads=threads, file=file, document=document, stages=stages, clips=clips,
     )

@@ -24,12 +24,14 @@ log = logging.getLogger(__name__)
 @dataclass
 class SequenceData:
     """One training sequence at the processing resolution: motion images float16 ``(F, 3, H, W)``, masks
-    uint8 ``(F, H, W)`` in {0, 1}, RGB frames uint8 ``(F, H, W, 3)`` (for appearance models)."""
+    uint8 ``(F, H, W)`` in {0, 1}, RGB frames uint8 ``(F, H, W, 3)`` (for appearance models) and, when asked
+    for, the appearance stage's features float16 ``(F, C, h, w)``."""
 
     name: str
     motion: np.ndarray
     masks: np.ndarray
     frames: np.ndarray
+    features: np.ndarray | None = None
 
 
 def davis_masks(root: Path, resolution: str, name: str, stems: list[str], shape: tuple[int, int]) -> np.ndarray:
@@ -59,9 +61,11 @@ def davis_masks(root: Path, resolution: str, name: str, stems: list[str], shape:
 
 
 def load_motion_sequences(geometry: Spec, root: Path, *, resolution: str, sequences: list[str] | None,
-                          exclude: list[str] = (), cache: Cache | None = None) -> list[SequenceData]:
+                          exclude: list[str] = (), cache: Cache | None = None,
+                          features: bool = False) -> list[SequenceData]:
     """Run the geometry stages of ``geometry`` (a validated spec with flow, trajectories and rigidity) on each
-    DAVIS-layout sequence under ``root`` and pair the motion images with the ground-truth masks."""
+    DAVIS-layout sequence under ``root`` and pair the motion images with the ground-truth masks; with
+    ``features``, also the appearance stage of ``geometry`` (computed once, through the cache)."""
     pipeline = Pipeline(geometry, cache=cache)
     sources = discover_sequences(root, sequences=sequences, resolution=resolution)
     out = []
@@ -71,6 +75,7 @@ def load_motion_sequences(geometry: Spec, root: Path, *, resolution: str, sequen
         video = load_video(source, scale=geometry.input.scale, keep_full=False)
         result = pipeline.process(video)
         masks = davis_masks(Path(root), resolution, video.name, video.stems, video.shape)
-        out.append(SequenceData(video.name, result.motion_images.astype(np.float16), masks, video.frames))
+        appearance = pipeline.appearance_features(video).astype(np.float16) if features else None
+        out.append(SequenceData(video.name, result.motion_images.astype(np.float16), masks, video.frames, appearance))
         log.info("%s: %d frames of motion images", video.name, video.num_frames)
     return out

@@ -2,42 +2,26 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import logging
-import os
-import time
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
-from eponet.core.cache import Cache
-from eponet.core.errors import EponetError, InputError
-from eponet.core.io import atomic_path, atomic_write_bytes
+from eponet.core.errors import InputError
+from eponet.core.io import atomic_write_bytes
 from eponet.core.progress import track
 from eponet.training.augment import InputDropout, random_crop_flip
+from eponet.training.base import HISTORY_FIELDS, Trainer, data_line, history_table, plot_history, sequence_j
 from eponet.training.config import DataSource, TrainConfig
 from eponet.training.data import SequenceData, load_motion_sequences
 
-__all__ = ["MotionNetTrainer", "sequence_j"]
+__all__ = ["MotionNetTrainer", "sequence_j", "model_card", "plot_history", "HISTORY_FIELDS"]
 
 log = logging.getLogger(__name__)
 
-HISTORY_FIELDS = ("epoch", "phase", "lr", "train_loss", "val_loss", "val_j", "seconds")
 
-
-def sequence_j(pred: np.ndarray, gt: np.ndarray) -> float:
-    """DAVIS-2016 J mean of one sequence (first and last frame dropped), from the evaluation module."""
-    from eponet.evaluation.metrics import db_eval_iou
-    from eponet.evaluation.stats import davis2016_scored, mean
-
-    scored = davis2016_scored(len(gt))
-    return float(mean([db_eval_iou(p, g) for p, g in zip(pred[scored], gt[scored])]))
-
-
-class MotionNetTrainer:
+class MotionNetTrainer(Trainer):
     """Trains an :class:`~eponet.nets.EpoUNet` as a :class:`TrainConfig` says."""
 
     def __init__(self, config: TrainConfig):
@@ -45,15 +29,9 @@ class MotionNetTrainer:
 
         from eponet.nets import EpoUNet
 
-        self.config = config
-        self.out = Path(config.output_dir)
-        self.cache = Cache(config.cache_dir, enabled=config.cache_enabled)
-        torch.manual_seed(config.seed)
-        torch.set_num_threads(max(1, os.cpu_count() or 1))
-        self.device = torch.device("cuda" if config.device in ("auto", "cuda") and torch.cuda.is_available() else "cpu")
+        super().__init__(config)
         self.model = EpoUNet(**self.model_config()).to(self.device).to(memory_format=torch.channels_last)
         self.dropout = InputDropout(**config.input_dropout)
-        self._data: dict[str, list[SequenceData]] = {}
 
     def model_config(self) -> dict:
         model = dict(self.config.model)
@@ -61,21 +39,19 @@ class MotionNetTrainer:
         return model
 
     # -- data ------------------------------------------------------------------------------------
-    def data(self, source: DataSource) -> list[SequenceData]:
-        key = json.dumps({"kind": source.kind, **{k: str(v) for k, v in source.options.items()}}, sort_keys=True)
-        if key not in self._data:
-            options = source.options
-            if source.kind == "rbsf":
-                root, resolution = self._ensure_rbsf(options)
-                sequences, exclude = None, []
-            else:
-                root, resolution = options["root"], options["resolution"]
-                sequences, exclude = options["sequences"], options["exclude"]
-            self._data[key] = load_motion_sequences(self.config.geometry, Path(root), resolution=resolution,
-                                                    sequences=sequences, exclude=exclude, cache=self.cache)
-            if not self._data[key]:
-                raise InputError(f"{root}: no training sequences left after exclusions")
-        return self._data[key]
+    def load_data(self, source: DataSource) -> list[SequenceData]:
+        options = source.options
+        if source.kind == "rbsf":
+            root, resolution = self._ensure_rbsf(options)
+            sequences, exclude = None, []
+        else:
+            root, resolution = options["root"], options["resolution"]
+            sequences, exclude = options["sequences"], options["exclude"]
+        data = load_motion_sequences(self.config.geometry, Path(root), resolution=resolution,
+                                     sequences=sequences, exclude=exclude, cache=self.cache)
+        if not data:
+            raise InputError(f"{root}: no training sequences left after exclusions")
+        return data
 
     def _ensure_rbsf(self, options: dict) -> tuple[Path, str]:
         from eponet.synth import write_dataset
@@ -92,20 +68,8 @@ class MotionNetTrainer:
         return root, f"{size[1]}p"
 
     # -- optimisation ----------------------------------------------------------------------------
-    def _optimizer(self):
-        import torch
-
-        o = self.config.optimizer
-        params = self.model.parameters()
-        if o["name"] == "sgd":
-            return torch.optim.SGD(params, lr=o["lr"], momentum=o["momentum"], weight_decay=o["weight_decay"])
-        if o["name"] == "rmsprop":
-            return torch.optim.RMSprop(params, lr=o["lr"], momentum=o["momentum"], weight_decay=o["weight_decay"])
-        if o["name"] == "adamw":
-            return torch.optim.AdamW(params, lr=o["lr"], weight_decay=o["weight_decay"])
-        return torch.optim.Adam(params, lr=o["lr"], weight_decay=o["weight_decay"])
-
-    def _lr(self, epoch_in_phase: int) -> float:
+    def learning_rate(self, epoch: int, epoch_in_phase: int) -> float:
+        """The step schedule: ``lr * gamma ** (epoch_in_phase // step_epochs)``, restarting in each phase."""
         o = self.config.optimizer
         return o["lr"] * o["gamma"] ** (epoch_in_phase // o["step_epochs"])
 
@@ -168,99 +132,36 @@ class MotionNetTrainer:
         frames = sum(len(s.masks) for s in data)
         return sum(losses) / frames, float(np.mean(scores))
 
-    # -- checkpoints -----------------------------------------------------------------------------
-    def _save_checkpoint(self, optimizer, epoch: int, history: list[dict]) -> None:
-        import torch
-
-        state = {"model": self.model.state_dict(), "optimizer": optimizer.state_dict(), "epoch": epoch,
-                 "history": history, "config": json.loads(json.dumps(self.config.document, default=str))}
-        with atomic_path(self.out / "checkpoint-last.pt") as tmp:
-            torch.save(state, tmp)
-
-    def export_weights(self, path: Path, meta: dict) -> str:
-        """Write inference weights (config + state dict + metadata) atomically; returns their sha256."""
-        import torch
-
-        from eponet.weights import sha256_of
-
-        state = {"config": {**self.model.config, "widths": list(self.model.config["widths"])},
-                 "state_dict": {k: v.detach().cpu() for k, v in self.model.state_dict().items()}, "meta": meta}
-        with atomic_path(path) as tmp:
-            torch.save(state, tmp)
-        return sha256_of(path)
-
-    # -- the whole run ---------------------------------------------------------------------------
-    def run(self, resume: bool = False) -> dict:
-        import torch
-
-        self.out.mkdir(parents=True, exist_ok=True)
-        optimizer = self._optimizer()
-        history: list[dict] = []
-        start_epoch = 0
-        checkpoint = self.out / "checkpoint-last.pt"
-        if resume:
-            if not checkpoint.is_file():
-                raise InputError(f"{checkpoint}: no checkpoint to resume from")
-            state = torch.load(checkpoint, map_location=self.device, weights_only=False)
-            self.model.load_state_dict(state["model"])
-            optimizer.load_state_dict(state["optimizer"])
-            start_epoch, history = state["epoch"] + 1, state["history"]
-            log.info("resuming after epoch %d", start_epoch)
-        validation = self.data(self.config.validation) if self.config.validation else None
-        schedule = [(phase, e) for phase in self.config.phases for e in range(phase.epochs)]
-        started = time.time()
-        for epoch in range(start_epoch, len(schedule)):
-            phase, epoch_in_phase = schedule[epoch]
-            data = self.data(phase.data)
-            lr = self._lr(epoch_in_phase)
-            for group in optimizer.param_groups:
-                group["lr"] = lr
-            tick = time.time()
-            loss = self.train_epoch(data, optimizer, epoch, phase.samples_per_epoch)
-            val_loss, val_j = self.validate(validation) if validation else (float("nan"), float("nan"))
-            row = {"epoch": epoch + 1, "phase": phase.name, "lr": lr, "train_loss": round(loss, 5),
-                   "val_loss": round(val_loss, 5), "val_j": round(val_j, 4), "seconds": round(time.time() - tick, 1)}
-            history.append(row)
-            log.info("epoch %d (%s): loss %.4f, val loss %.4f, val J %.3f, %.0f s", epoch + 1, phase.name, loss,
-                     val_loss, val_j, row["seconds"])
-            self._save_checkpoint(optimizer, epoch, history)
-            self._write_history(history)
-        total = sum(r["seconds"] for r in history)
-        meta = {"history": history, "train_seconds": round(total, 1), "seed": self.config.seed,
-                "spec": json.loads(json.dumps(self.config.document, default=str))}
-        sha = self.export_weights(self.out / "weights.pt", meta)
-        summary = {"weights": str(self.out / "weights.pt"), "sha256": sha, "epochs": len(history),
-                   "train_seconds": round(total, 1), "final": history[-1] if history else None}
-        atomic_write_bytes(self.out / "summary.json", json.dumps(summary, indent=2).encode())
-        return summary
-
-    def _write_history(self, history: list[dict]) -> None:
-        buffer = io.StringIO()
-        writer = csv.DictWriter(buffer, fieldnames=HISTORY_FIELDS)
-        writer.writeheader()
-        writer.writerows(history)
-        atomic_write_bytes(self.out / "history.csv", buffer.getvalue().encode())
-        plot_history(history, self.out / "curves.png")
+    def model_card(self, summary: dict, history: list[dict]) -> str:
+        return model_card(self.config, summary, history)
 
 
-def plot_history(history: list[dict], path: Path) -> None:
-    """Loss and validation-J curves per epoch as a PNG."""
-    import matplotlib
+def model_card(config: TrainConfig, summary: dict, history: list[dict]) -> str:
+    """A Markdown model card: architecture, data, recipe, per-epoch figures, training time and checksum."""
+    import platform
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import torch
 
-    epochs = [r["epoch"] for r in history]
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
-    left.plot(epochs, [r["train_loss"] for r in history], "o-", label="train")
-    left.plot(epochs, [r["val_loss"] for r in history], "s-", label="validation")
-    left.set_xlabel("epoch"), left.set_ylabel("BCE loss"), left.legend(), left.grid(alpha=0.3)
-    right.plot(epochs, [r["val_j"] for r in history], "o-", color="tab:green")
-    right.set_xlabel("epoch"), right.set_ylabel("validation J mean (no CRF)"), right.grid(alpha=0.3)
-    for boundary in [i for i in range(1, len(history)) if history[i]["phase"] != history[i - 1]["phase"]]:
-        for axis in (left, right):
-            axis.axvline(epochs[boundary] - 0.5, color="grey", linestyle="--")
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
+    m, o, d, a = config.model, config.optimizer, config.input_dropout, config.augment
+    lines = [
+        "# Model card: EpO motion network", "",
+        f"- weights: `{Path(summary['weights']).name}`, sha256 `{summary['sha256']}`",
+        f"- architecture: EpO U-Net, inputs {m['inputs']}, depth {m['depth']}, widths {list(m['widths'])[:m['depth']]}, "
+        f"{m['head_channels']} channels before the 1x1 classifier",
+        f"- trained with `eponet train {Path(config.file).name if config.file else '<spec>'}`, seed {config.seed}, "
+        f"{summary['epochs']} epochs in {summary['train_seconds'] / 60:.1f} min on {platform.machine()} "
+        f"({torch.get_num_threads()} threads, device {config.device})",
+        f"- optimiser: {o['name']}, lr {o['lr']} x {o['gamma']} every {o['step_epochs']} epochs of a phase, "
+        f"momentum {o['momentum']}, weight decay {o['weight_decay']}, batch {o['batch_size']}",
+        f"- input-dropout: {d['probability']:.0%} of samples, ED zeroed for {d['zero_epochs']} epochs, then {d['then']}",
+        f"- augmentation: crops {a['crop']}, flips {a['flip']}",
+        "- geometry: " + (", ".join(f"{k} {v.plugin} {v.params}" for k, v in config.geometry.stages.items())
+                          if config.geometry else "not recorded"),
+        "", "## Data", "",
+    ]
+    lines += [f"{i + 1}. phase `{p.name}` ({p.epochs} epochs): {data_line(p.data)}" for i, p in enumerate(config.phases)]
+    if config.validation:
+        lines += ["", f"Validation: {data_line(config.validation)} (J mean, DAVIS-2016 protocol, threshold 0.5, no CRF, "
+                  "at the training resolution)."]
+    lines += history_table(history)
+    return "\n".join(lines) + "\n"

@@ -38,3 +38,14 @@ def test_corrupt_entry_is_a_miss(tmp_path):
     path = next(tmp_path.rglob("*.npz"))
     path.write_bytes(b"garbage")
     assert cache.load("flow", "cd" * 32) is None
+
+
+def test_code_fingerprint_covers_the_stage_module_and_algorithm_code_only(monkeypatch, tmp_path):
+    from eponet.core import cache as cache_module
+
+    dis = cache_module.code_fingerprint("eponet.plugins.flow.dis")
+    assert dis == cache_module.code_fingerprint("eponet.plugins.flow.dis")
+    assert dis != cache_module.code_fingerprint("eponet.plugins.flow.farneback")
+    # the training, evaluation and CLI code is not part of any stage's fingerprint
+    assert "training" not in cache_module.ALGORITHM_CODE and "evaluation" not in cache_module.ALGORITHM_CODE
+    assert {"geometry", "nets"} <= set(cache_module.ALGORITHM_CODE)

@@ -1,0 +1,146 @@
+"""The EpO ablation of the paper (Table 1 style) on eponet's 6-sequence DAVIS validation split.
+
+Trains one motion network per variant from ``examples/train-epo.yaml`` (the shipped recipe) and scores each
+end to end with ``python -m eponet.run``'s pipeline: DAVIS-2016 480p frames processed at scale 0.5, masks at
+480p, J mean with the DAVIS-2016 protocol, with the threshold refiner (no CRF) and with the dense CRF.
+
+    python benchmarks/epo_ablation.py [--variants ed+flow+dropout,flow,...] [--jobs 2] [--out runs/ablation]
+
+Variants (all with the same schedule; RBSF pre-training unless the name says otherwise):
+    ed+flow+dropout      the shipped recipe: ED + flow inputs with input-dropout of ED
+    ed+flow              no input-dropout
+    flow                 flow only (dx, dy)
+    ed                   ED only
+    ed+flow+dropout-rbsf without the RBSF phase (DAVIS only)
+
+Prints a table and writes ``<out>/ablation.json``; training curves stay in ``<out>/<variant>/``.
+Already trained variants (``weights.pt`` present) are not retrained unless ``--retrain``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+RECIPE = ROOT / "examples" / "train-epo.yaml"
+
+
+def variant_document(base: dict, name: str) -> dict:
+    doc = copy.deepcopy(base)
+    if name == "ed+flow":
+        doc["input_dropout"]["probability"] = 0.0
+    elif name == "flow":
+        doc["model"]["inputs"], doc["input_dropout"]["probability"] = "flow", 0.0
+    elif name == "ed":
+        doc["model"]["inputs"], doc["input_dropout"]["probability"] = "ed", 0.0
+    elif name == "ed+flow+dropout-rbsf":
+        doc["phases"] = [p for p in doc["phases"] if "rbsf" not in p["data"]]
+    elif name != "ed+flow+dropout":
+        raise SystemExit(f"unknown variant {name!r}; known: {', '.join(VARIANTS)}")
+    return doc
+
+
+VARIANTS = ("ed+flow+dropout", "ed+flow", "flow", "ed", "ed+flow+dropout-rbsf")
+
+
+def absolutise(doc: dict, base_dir: Path) -> dict:
+    """Rewrite the recipe's relative paths against its own folder, so the variant spec can live anywhere."""
+    def fix(value):
+        return str((base_dir / value).resolve()) if value and not Path(value).is_absolute() else value
+
+    for phase in doc["phases"]:
+        for kind, options in phase["data"].items():
+            key = "root" if kind == "davis" else "dir"
+            options[key] = fix(options[key])
+    for kind, options in doc["validation"].items():
+        options["root"] = fix(options["root"])
+    return doc
+
+
+def train(name: str, out: Path, threads: int, retrain: bool) -> tuple[str, float]:
+    folder = out / name
+    if (folder / "weights.pt").is_file() and not retrain:
+        return name, json.loads((folder / "summary.json").read_text())["train_seconds"]
+    base = yaml.safe_load(RECIPE.read_text())
+    doc = absolutise(variant_document(base, name), RECIPE.parent)
+    doc["output"] = {"dir": str(folder)}
+    doc["threads"] = threads
+    folder.mkdir(parents=True, exist_ok=True)
+    spec = folder / "train.yaml"
+    spec.write_text(yaml.safe_dump(doc, sort_keys=False))
+    resume = ["--resume"] if (folder / "checkpoint-last.pt").is_file() and not retrain else []
+    tick = time.time()
+    with open(folder / "train.log", "w") as log:
+        subprocess.run([sys.executable, "-m", "eponet.train", str(spec), "-q", *resume], check=True, stdout=log,
+                       stderr=subprocess.STDOUT)
+    return name, time.time() - tick
+
+
+def score(weights: Path, refiner: dict, out: Path, davis: Path, sequences: list[str]) -> dict:
+    from eponet.core.pipeline import Pipeline
+    from eponet.core.progress import set_quiet
+    from eponet.core.spec import parse_spec
+
+    set_quiet(True)
+    spec = parse_spec({
+        "preset": "epo",
+        "input": {"path": str(davis), "resolution": "480p", "sequences": sequences, "scale": 0.5},
+        "stages": {"motion_net": {"plugin": "epo_unet", "weights": str(weights)}, "refiner": refiner},
+        "output": {"dir": str(out), "save": ["masks"]},
+        "evaluate": {"dataset": "davis2016", "t": False},
+        "seed": 0,
+    }, base_dir=ROOT)
+    manifest = Pipeline(spec).run()
+    evaluation = manifest["evaluation"]
+    return {"J": evaluation["overall"]["J"]["mean"], "F": evaluation["overall"]["F"]["mean"],
+            "per_sequence_J": {s: v["J"]["mean"] for s, v in evaluation["sequences"].items()}}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--variants", default=",".join(VARIANTS))
+    parser.add_argument("--jobs", type=int, default=2, help="variants trained at once (one thread each)")
+    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "ablation")
+    parser.add_argument("--retrain", action="store_true")
+    parser.add_argument("--no-crf", action="store_true", help="score without the CRF only")
+    args = parser.parse_args()
+    names = [n for n in args.variants.split(",") if n]
+    for name in names:
+        variant_document(yaml.safe_load(RECIPE.read_text()), name)  # fail early on unknown names
+    threads = 1 if args.jobs > 1 else 0
+    with ThreadPoolExecutor(args.jobs) as pool:
+        seconds = dict(pool.map(lambda n: train(n, args.out, threads or None, args.retrain), names))
+
+    recipe = yaml.safe_load(RECIPE.read_text())
+    davis = (RECIPE.parent / recipe["validation"]["davis"]["root"]).resolve()
+    sequences = recipe["validation"]["davis"]["sequences"]
+    refiners = {"no CRF": {"plugin": "threshold"}}
+    if not args.no_crf:
+        refiners["CRF"] = {"plugin": "densecrf"}
+    results = {}
+    for name in names:
+        history = json.loads((args.out / name / "summary.json").read_text())
+        results[name] = {"train_seconds": round(seconds[name], 1), "epochs": history["epochs"]}
+        for label, refiner in refiners.items():
+            results[name][label] = score(args.out / name / "weights.pt", refiner, args.out / name / label.replace(" ", "-"),
+                                         davis, sequences)
+    print(f"validation split: {', '.join(sequences)} (DAVIS-2016 480p, processed at scale 0.5)")
+    print(f"{'variant':<24}" + "".join(f"{'J ' + label:>12}" for label in refiners) + f"{'train min':>11}")
+    for name, row in results.items():
+        print(f"{name:<24}" + "".join(f"{row[label]['J']:>12.3f}" for label in refiners)
+              + f"{row['train_seconds'] / 60:>11.1f}")
+    (args.out / "ablation.json").write_text(json.dumps({"sequences": sequences, "results": results}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,1 @@
+"""Appearance stages: per-frame feature maps for the fusion stage."""

@@ -1,0 +1,1 @@
+"""Fusion stages: appearance features and the motion map to the foreground probability."""

@@ -1,0 +1,104 @@
+"""Fusion stage ``convgru``: EpO+'s bidirectional ConvGRU over appearance features and the motion map."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from eponet.core.devices import DEVICES, torch_device
+from eponet.core.errors import MissingWeights, StageError
+from eponet.core.hookspecs import StageSpec, hookimpl
+from eponet.core.params import Param
+from eponet.weights import resolve_weights
+
+__all__ = ["ConvGRUStage", "load_fusion"]
+
+log = logging.getLogger(__name__)
+
+
+def load_fusion(weights: str, sha256: str | None = None):
+    """Build a :class:`~eponet.fusion.ConvGRUFusion` from a verified weights file (built-in name or path, as
+    written by ``eponet train`` with ``task: fusion``); returns the model in eval mode and the file's sha256."""
+    import torch
+
+    from eponet.fusion import ConvGRUFusion
+
+    path, digest = resolve_weights(weights, sha256=sha256, kind="fusion")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+        config = dict(checkpoint["config"])
+        model = ConvGRUFusion(config.pop("appearance_channels"), **config)
+        model.load_state_dict(checkpoint["state_dict"])
+    except Exception as exc:
+        raise MissingWeights(f"{path}: not ConvGRU fusion weights ({exc.__class__.__name__}: "
+                             f"{str(exc).splitlines()[0]})") from None
+    return model.eval(), digest
+
+
+class ConvGRUStage:
+    """Whole-video fusion, in overlapping windows of ``window`` frames (see :func:`eponet.fusion.video_logits`
+    for the memory bound), stitched by ``blend``; logits are bilinearly upsampled to the saliency's size."""
+
+    def __init__(self, *, weights: str = "epo-plus-davis", sha256: str | None = None, window: int | None = 32,
+                 overlap: int = 8, blend: str = "centre", device: str = "auto"):
+        self.model, self.sha256 = load_fusion(weights, sha256)
+        self.window, self.overlap, self.blend = window, overlap, blend
+        self.device = torch_device(device)
+
+    def fuse(self, features: np.ndarray, saliency: np.ndarray) -> np.ndarray:
+        """Foreground probability float32 ``(F, H, W)`` from features ``(F, C, h, w)`` and saliency ``(F, H, W)``."""
+        import torch
+        import torch.nn.functional as F
+
+        from eponet.fusion import video_logits
+
+        expected = self.model.appearance_channels
+        if features.ndim != 4 or features.shape[1] != expected:
+            raise StageError(f"fusion convgru: the weights expect {expected} appearance channels, got features of "
+                             f"shape {features.shape}; use the appearance stage the fusion was trained with")
+        logits = video_logits(self.model.to(self.device), features, saliency, window=self.window,
+                              overlap=self.overlap, blend=self.blend, device=self.device)
+        out = np.empty(saliency.shape, np.float32)
+        for start in range(0, len(out), 16):  # upsample a few frames at a time: bounded temporaries
+            chunk = F.interpolate(logits[start : start + 16, None], size=saliency.shape[-2:], mode="bilinear",
+                                  align_corners=False)
+            out[start : start + len(chunk)] = torch.sigmoid(chunk[:, 0]).numpy()
+        return out
+
+
+def _check(params: dict) -> list[str]:
+    problems = []
+    try:
+        resolve_weights(params["weights"], sha256=params.get("sha256"), kind="fusion")
+    except MissingWeights as exc:
+        problems.append(f"weights: {exc}")
+    window = params.get("window")
+    if window is not None and params["overlap"] >= window:
+        problems.append(f"overlap: expected fewer frames than window ({window}), got {params['overlap']}")
+    return problems
+
+
+@hookimpl
+def eponet_stages():
+    return [
+        StageSpec(
+            kind="fusion",
+            name="convgru",
+            factory=ConvGRUStage,
+            params=(
+                Param("weights", "weights", "epo-plus-davis", "built-in weights name or a weights file (.pt from "
+                      "eponet train with task: fusion)"),
+                Param("sha256", "str", None, "expected sha256 of a weights file (checked before loading)", nullable=True),
+                Param("window", "int", 32, "frames per inference window (memory grows with it, not with the video); "
+                      "null: the whole video in one pass, as the authors' code", minimum=2, nullable=True),
+                Param("overlap", "int", 8, "frames shared by consecutive windows", minimum=0),
+                Param("blend", "choice", "centre", "stitching of overlaps: centre = each frame from the window where it "
+                      "is most central (the more accurate: cold-started window edges are never used), linear = "
+                      "cross-fade of the logits", choices=("centre", "linear")),
+                Param("device", "choice", "auto", "where to run: auto = GPU when available", choices=DEVICES),
+            ),
+            doc="EpO+ fusion: bottleneck appearance features + motion map through a bidirectional ConvGRU",
+            check=_check,
+        )
+    ]

@@ -1,0 +1,217 @@
+"""What every eponet trainer shares: seeding, the epoch loop over phases, checkpoints and resume, the history
+CSV and curves, weights export and the pieces of a model card."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from eponet.core.cache import Cache
+from eponet.core.errors import InputError
+from eponet.core.io import atomic_path, atomic_write_bytes
+from eponet.training.config import DataSource, TrainConfig
+
+__all__ = ["Trainer", "HISTORY_FIELDS", "sequence_j", "plot_history", "data_line", "history_table"]
+
+log = logging.getLogger(__name__)
+
+HISTORY_FIELDS = ("epoch", "phase", "lr", "train_loss", "val_loss", "val_j", "seconds")
+
+
+def sequence_j(pred: np.ndarray, gt: np.ndarray) -> float:
+    """DAVIS-2016 J mean of one sequence (first and last frame dropped), from the evaluation module."""
+    from eponet.evaluation.metrics import db_eval_iou
+    from eponet.evaluation.stats import davis2016_scored, mean
+
+    scored = davis2016_scored(len(gt))
+    return float(mean([db_eval_iou(p, g) for p, g in zip(pred[scored], gt[scored])]))
+
+
+class Trainer:
+    """The training loop; a subclass provides the model and the task.
+
+    A subclass sets ``self.model`` (a torch module with a JSON-able ``config`` dict) in its ``__init__`` after
+    calling this one (which seeds torch, so the model's initialisation is reproducible) and implements
+    :meth:`load_data`, :meth:`train_epoch`, :meth:`validate`, :meth:`learning_rate` and :meth:`model_card`.
+    """
+
+    def __init__(self, config: TrainConfig):
+        import torch
+
+        self.config = config
+        self.out = Path(config.output_dir)
+        self.cache = Cache(config.cache_dir, enabled=config.cache_enabled)
+        torch.manual_seed(config.seed)
+        torch.set_num_threads(config.threads or max(1, os.cpu_count() or 1))
+        self.device = torch.device("cuda" if config.device in ("auto", "cuda") and torch.cuda.is_available() else "cpu")
+        self.model = None
+        self._data: dict[str, list] = {}
+
+    # -- what a task provides --------------------------------------------------------------------
+    def load_data(self, source: DataSource) -> list:
+        """The training or validation sequences of ``source`` (called once per source)."""
+        raise NotImplementedError
+
+    def train_epoch(self, data: list, optimizer, epoch: int, samples: int | None) -> float:
+        """One epoch of optimisation (``epoch`` counts from 0 over all phases); returns the mean loss."""
+        raise NotImplementedError
+
+    def validate(self, data: list) -> tuple[float, float]:
+        """(mean loss, mean J over sequences)."""
+        raise NotImplementedError
+
+    def learning_rate(self, epoch: int, epoch_in_phase: int) -> float:
+        raise NotImplementedError
+
+    def model_card(self, summary: dict, history: list[dict]) -> str:
+        raise NotImplementedError
+
+    # -- shared ----------------------------------------------------------------------------------
+    def data(self, source: DataSource) -> list:
+        """:meth:`load_data` of ``source``, kept in memory for the whole run."""
+        key = json.dumps({"kind": source.kind, **{k: str(v) for k, v in source.options.items()}}, sort_keys=True)
+        if key not in self._data:
+            self._data[key] = self.load_data(source)
+        return self._data[key]
+
+    def _optimizer(self):
+        import torch
+
+        o = self.config.optimizer
+        params = self.model.parameters()
+        if o["name"] == "sgd":
+            return torch.optim.SGD(params, lr=o["lr"], momentum=o["momentum"], weight_decay=o["weight_decay"])
+        if o["name"] == "rmsprop":
+            return torch.optim.RMSprop(params, lr=o["lr"], momentum=o["momentum"], weight_decay=o["weight_decay"])
+        if o["name"] == "adamw":
+            return torch.optim.AdamW(params, lr=o["lr"], weight_decay=o["weight_decay"])
+        return torch.optim.Adam(params, lr=o["lr"], weight_decay=o["weight_decay"])
+
+    def _save_checkpoint(self, optimizer, epoch: int, history: list[dict]) -> None:
+        import torch
+
+        state = {"model": self.model.state_dict(), "optimizer": optimizer.state_dict(), "epoch": epoch,
+                 "history": history, "config": json.loads(json.dumps(self.config.document, default=str))}
+        with atomic_path(self.out / "checkpoint-last.pt") as tmp:
+            torch.save(state, tmp)
+
+    def export_weights(self, path: Path, meta: dict) -> str:
+        """Write inference weights (config + state dict + metadata) atomically; returns their sha256."""
+        import torch
+
+        from eponet.weights import sha256_of
+
+        state = {"config": json.loads(json.dumps(self.model.config)),
+                 "state_dict": {k: v.detach().cpu() for k, v in self.model.state_dict().items()}, "meta": meta}
+        with atomic_path(path) as tmp:
+            torch.save(state, tmp)
+        return sha256_of(path)
+
+    def weights_meta(self) -> dict:
+        """Extra metadata stored with the exported weights (a subclass may add to it)."""
+        return {}
+
+    def run(self, resume: bool = False) -> dict:
+        """Train every phase's epochs (continuing after the last checkpoint with ``resume``), writing a
+        checkpoint, ``history.csv`` and ``curves.png`` after each epoch, then ``weights.pt``, ``summary.json`` and
+        ``model-card.md``; returns the summary."""
+        import torch
+
+        self.out.mkdir(parents=True, exist_ok=True)
+        optimizer = self._optimizer()
+        history: list[dict] = []
+        start_epoch = 0
+        checkpoint = self.out / "checkpoint-last.pt"
+        if resume:
+            if not checkpoint.is_file():
+                raise InputError(f"{checkpoint}: no checkpoint to resume from")
+            state = torch.load(checkpoint, map_location=self.device, weights_only=False)
+            self.model.load_state_dict(state["model"])
+            optimizer.load_state_dict(state["optimizer"])
+            start_epoch, history = state["epoch"] + 1, state["history"]
+            log.info("resuming after epoch %d", start_epoch)
+        validation = self.data(self.config.validation) if self.config.validation else None
+        schedule = [(phase, e) for phase in self.config.phases for e in range(phase.epochs)]
+        for epoch in range(start_epoch, len(schedule)):
+            phase, epoch_in_phase = schedule[epoch]
+            data = self.data(phase.data)
+            lr = self.learning_rate(epoch, epoch_in_phase)
+            for group in optimizer.param_groups:
+                group["lr"] = lr
+            tick = time.time()
+            loss = self.train_epoch(data, optimizer, epoch, phase.samples_per_epoch)
+            val_loss, val_j = self.validate(validation) if validation else (float("nan"), float("nan"))
+            row = {"epoch": epoch + 1, "phase": phase.name, "lr": lr, "train_loss": round(loss, 5),
+                   "val_loss": round(val_loss, 5), "val_j": round(val_j, 4), "seconds": round(time.time() - tick, 1)}
+            history.append(row)
+            log.info("epoch %d (%s): loss %.4f, val loss %.4f, val J %.3f, %.0f s", epoch + 1, phase.name, loss,
+                     val_loss, val_j, row["seconds"])
+            self._save_checkpoint(optimizer, epoch, history)
+            self._write_history(history)
+        total = sum(r["seconds"] for r in history)
+        meta = {"history": history, "train_seconds": round(total, 1), "seed": self.config.seed,
+                "spec": json.loads(json.dumps(self.config.document, default=str)), **self.weights_meta()}
+        sha = self.export_weights(self.out / "weights.pt", meta)
+        summary = {"weights": str(self.out / "weights.pt"), "sha256": sha, "epochs": len(history),
+                   "train_seconds": round(total, 1), "final": history[-1] if history else None}
+        atomic_write_bytes(self.out / "summary.json", json.dumps(summary, indent=2).encode())
+        atomic_write_bytes(self.out / "model-card.md", self.model_card(summary, history).encode())
+        return summary
+
+    def _write_history(self, history: list[dict]) -> None:
+        buffer = io.StringIO()
+        writer = csv.DictWriter(buffer, fieldnames=HISTORY_FIELDS)
+        writer.writeheader()
+        writer.writerows(history)
+        atomic_write_bytes(self.out / "history.csv", buffer.getvalue().encode())
+        plot_history(history, self.out / "curves.png")
+
+
+def data_line(source: DataSource) -> str:
+    """One Markdown line describing a training or validation data source."""
+    o = source.options
+    if source.kind == "rbsf":
+        return (f"RBSF-style synthetic clips ({o.get('sequences')} x {o.get('frames')} frames, {o.get('size')}, "
+                f"seed {o.get('seed')})")
+    chosen = ", ".join(o["sequences"]) if o.get("sequences") else "all sequences"
+    excluded = f" except {', '.join(o['exclude'])}" if o.get("exclude") else ""
+    return f"DAVIS-layout root `{Path(str(o.get('root'))).name}` {o.get('resolution', '')}: {chosen}{excluded}"
+
+
+def history_table(history: list[dict]) -> list[str]:
+    """The per-epoch figures as Markdown table lines (with the section heading)."""
+    lines = ["", "## Training history", "", "| epoch | phase | lr | train loss | val loss | val J | s |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    lines += [f"| {r['epoch']} | {r['phase']} | {r['lr']:g} | {r['train_loss']} | {r['val_loss']} | {r['val_j']} | "
+              f"{r['seconds']} |" for r in history]
+    return lines
+
+
+def plot_history(history: list[dict], path: Path) -> None:
+    """Loss and validation-J curves per epoch as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    epochs = [r["epoch"] for r in history]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    left.plot(epochs, [r["train_loss"] for r in history], "o-", label="train")
+    left.plot(epochs, [r["val_loss"] for r in history], "s-", label="validation")
+    left.set_xlabel("epoch"), left.set_ylabel("BCE loss"), left.legend(), left.grid(alpha=0.3)
+    right.plot(epochs, [r["val_j"] for r in history], "o-", color="tab:green")
+    right.set_xlabel("epoch"), right.set_ylabel("validation J mean (no CRF)"), right.grid(alpha=0.3)
+    for boundary in [i for i in range(1, len(history)) if history[i]["phase"] != history[i - 1]["phase"]]:
+        for axis in (left, right):
+            axis.axvline(epochs[boundary] - 0.5, color="grey", linestyle="--")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    plt.close(fig)

