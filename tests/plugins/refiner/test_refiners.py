@@ -53,3 +53,12 @@ def test_downscaled_crf_agrees_with_full_resolution():
     half = densecrf_mask(frame, prob, scale=0.5)
     assert half.shape == truth.shape
     assert _iou(half, truth) > 0.88 and _iou(half, full) > 0.9
+
+
+def test_max_size_caps_the_crf_resolution():
+    frame, prob, _ = _scene(2)
+    longer = max(prob.shape)
+    # a cap at half the longer side is the same computation as scale 0.5; a cap above it changes nothing
+    np.testing.assert_array_equal(densecrf_mask(frame, prob, max_size=longer // 2),
+                                  densecrf_mask(frame, prob, scale=(longer // 2) / longer))
+    np.testing.assert_array_equal(densecrf_mask(frame, prob, max_size=longer * 2), densecrf_mask(frame, prob))
