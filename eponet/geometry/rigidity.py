@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 import logging
 
 import numpy as np
@@ -72,7 +73,7 @@ ROBUST_PARAMS = (
 )
 
 
-class RigidityStage:
+class RigidityStage(ABC):
     """Template of a rigidity stage: groups of ``views`` frames, one model per group, per-trajectory means,
     ED maps. Subclasses set ``views`` and implement :meth:`estimate`."""
 
@@ -107,8 +108,9 @@ class RigidityStage:
             min_sigma=float(min_sigma),
         )
 
-    def estimate(self, points: list[np.ndarray], rng: np.random.Generator) -> FittedModel:  # pragma: no cover
-        raise NotImplementedError
+    @abstractmethod
+    def estimate(self, points: list[np.ndarray], rng: np.random.Generator) -> FittedModel:
+        """The fitted model of one frame group's point tracks (a subclass's estimator)."""
 
     def score(self, trajectories: Trajectories, flow: FlowPair | None, rng: np.random.Generator) -> RigidityResult:
         """Per-pixel distance maps float32 ``(F, H, W)`` in pixels, per-trajectory means and per-group records.

@@ -4,6 +4,7 @@ CSV and curves, weights export and the pieces of a model card."""
 from __future__ import annotations
 
 import csv
+from abc import ABC, abstractmethod
 import io
 import json
 import logging
@@ -34,7 +35,7 @@ def sequence_j(pred: np.ndarray, gt: np.ndarray) -> float:
     return float(mean([db_eval_iou(p, g) for p, g in zip(pred[scored], gt[scored])]))
 
 
-class Trainer:
+class Trainer(ABC):
     """The training loop; a subclass provides the model and the task.
 
     A subclass sets ``self.model`` (a torch module with a JSON-able ``config`` dict) in its ``__init__`` after
@@ -55,23 +56,28 @@ class Trainer:
         self._data: dict[str, list] = {}
 
     # -- what a task provides --------------------------------------------------------------------
+    @abstractmethod
     def load_data(self, source: DataSource) -> list:
         """The training or validation sequences of ``source`` (called once per source)."""
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def train_epoch(self, data: list, optimizer, epoch: int, samples: int | None) -> float:
         """One epoch of optimisation (``epoch`` counts from 0 over all phases); returns the mean loss."""
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def validate(self, data: list) -> tuple[float, float]:
         """(mean loss, mean J over sequences)."""
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def learning_rate(self, epoch: int, epoch_in_phase: int) -> float:
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def model_card(self, summary: dict, history: list[dict]) -> str:
-        raise NotImplementedError
+        ...
 
     # -- shared ----------------------------------------------------------------------------------
     def data(self, source: DataSource) -> list:
