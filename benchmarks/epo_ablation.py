@@ -8,12 +8,12 @@ with the dense CRF of the ``epo`` preset. (The shared data holds 480p frames of 
 
     python benchmarks/epo_ablation.py [--variants ed+flow+dropout,flow,...] [--jobs 2] [--out runs/ablation]
 
-Variants (all with the same schedule; RBSF pre-training unless the name says otherwise):
+Variants (all with the recipe's DAVIS schedule):
     ed+flow+dropout      the shipped recipe: ED + flow inputs with input-dropout of ED
     ed+flow              no input-dropout
     flow                 flow only (dx, dy)
     ed                   ED only
-    ed+flow+dropout-rbsf without the RBSF phase (DAVIS only)
+    ed+flow+dropout+rbsf the recipe after an RBSF pre-training phase (RBSF_PHASE)
 
 Prints a table and writes ``<out>/ablation.json``; training curves stay in ``<out>/<variant>/``.
 Already trained variants (``weights.pt`` present) are not retrained unless ``--retrain``.
@@ -44,14 +44,17 @@ def variant_document(base: dict, name: str) -> dict:
         doc["model"]["inputs"], doc["input_dropout"]["probability"] = "flow", 0.0
     elif name == "ed":
         doc["model"]["inputs"], doc["input_dropout"]["probability"] = "ed", 0.0
-    elif name == "ed+flow+dropout-rbsf":
-        doc["phases"] = [p for p in doc["phases"] if "rbsf" not in p["data"]]
+    elif name == "ed+flow+dropout+rbsf":
+        doc["phases"] = [copy.deepcopy(RBSF_PHASE)] + doc["phases"]
     elif name != "ed+flow+dropout":
         raise SystemExit(f"unknown variant {name!r}; known: {', '.join(VARIANTS)}")
     return doc
 
 
-VARIANTS = ("ed+flow+dropout", "ed+flow", "flow", "ed", "ed+flow+dropout-rbsf")
+VARIANTS = ("ed+flow+dropout", "ed+flow", "flow", "ed", "ed+flow+dropout+rbsf")
+#: Stage 1 of the paper: generated RBSF-style clips (relative to examples/), before the DAVIS phase.
+RBSF_PHASE = {"name": "rbsf", "data": {"rbsf": {"dir": "../runs/rbsf-train", "sequences": 60, "frames": 30,
+                                                "size": "427x240", "seed": 1}}, "epochs": 2}
 
 
 def absolutise(doc: dict, base_dir: Path) -> dict:

@@ -25,8 +25,10 @@ def array_digest(array: np.ndarray) -> str:
     return digest.hexdigest()
 
 
-#: eponet's algorithm code that every built-in stage may depend on, besides the stage's own module.
-ALGORITHM_CODE = ("geometry", "nets", "core/types.py", "core/imaging.py", "core/motion.py")
+#: eponet's algorithm code that every cached built-in stage (flow, trajectories, rigidity, appearance) may depend
+#: on, besides the stage's own module. The torch networks (``nets/``, ``fusion/``) are not here: no cached stage
+#: runs them, so retraining or editing a network keeps the cached flow, ED and features.
+ALGORITHM_CODE = ("geometry", "core/types.py", "core/imaging.py", "core/motion.py")
 
 
 @functools.lru_cache(maxsize=None)

@@ -97,34 +97,54 @@ class ConvGRUFusion(nn.Module):
        run over the sequence;
     4. the classifier is a 1x1 convolution of the concatenated states, written as the sum of one 1x1
        convolution per direction and a shared bias (the same function; the split makes the direction swap of
-       the tests exact).
+       the tests exact);
+    5. :meth:`frame_logits` upsamples the logits to the frame size. With ``motion_residual`` (an eponet
+       extension, off in the paper's network) the network predicts a correction of the motion net: the output
+       is ``up(logits) + motion_weight * logit(s)`` with ``s`` the full-resolution motion map clipped to
+       [1e-3, 1 - 1e-3], ``motion_weight`` learned from 1 and the classifier starting at zero, so training
+       starts from EpO's own prediction and boundaries keep the motion map's resolution. A frame whose motion
+       map is all zero (input-dropout) gets no residual: there the appearance and memory must do the work.
+
+    ``feature_dropout`` (eponet extension; 0 in the paper) drops whole appearance channels with that
+    probability in training (``nn.Dropout2d`` before the bottleneck), against over-fitting the few training
+    sequences' appearance.
 
     Initialisation (paper section 5.2): Xavier for the bottleneck and classifier, He for the ConvGRU.
 
     Input: ``features`` float ``(B, T, C, h, w)`` and ``saliency`` float ``(B, T, H, W)`` in [0, 1] (any size;
-    resized to ``(h, w)``). Output: logits ``(B, T, h, w)`` at the feature size; upsample them to the frame
-    size and apply a sigmoid for the foreground probability.
+    resized to ``(h, w)``). Output: logits ``(B, T, h, w)`` at the feature size; :meth:`frame_logits` brings
+    them to the frame size (apply a sigmoid for the foreground probability).
     """
 
-    def __init__(self, appearance_channels: int, *, bottleneck: int = 128, hidden: int = 64, kernel_size: int = 3):
+    #: Motion maps are clipped to [MOTION_EPS, 1 - MOTION_EPS] before their logit is taken (residual: +-6.9).
+    MOTION_EPS = 1e-3
+
+    def __init__(self, appearance_channels: int, *, bottleneck: int = 128, hidden: int = 64, kernel_size: int = 3,
+                 motion_residual: bool = False, feature_dropout: float = 0.0):
         super().__init__()
         if appearance_channels < 0 or bottleneck < 1 or hidden < 1:
             raise ValueError(f"expected appearance_channels >= 0, bottleneck >= 1 and hidden >= 1, got "
                              f"{appearance_channels}, {bottleneck}, {hidden}")
         self.config = {"appearance_channels": appearance_channels, "bottleneck": bottleneck, "hidden": hidden,
-                       "kernel_size": kernel_size}
+                       "kernel_size": kernel_size, "motion_residual": bool(motion_residual),
+                       "feature_dropout": float(feature_dropout)}
         self.bottleneck = nn.Conv2d(appearance_channels, bottleneck, 1) if appearance_channels else None
+        self.feature_dropout = nn.Dropout2d(feature_dropout) if feature_dropout > 0 else nn.Identity()
         gru_in = (bottleneck if appearance_channels else 0) + 1
         self.forward_cell = ConvGRUCell(gru_in, hidden, kernel_size)
         self.backward_cell = ConvGRUCell(gru_in, hidden, kernel_size)
         self.head_forward = nn.Conv2d(hidden, 1, 1, bias=False)
         self.head_backward = nn.Conv2d(hidden, 1, 1, bias=False)
         self.head_bias = nn.Parameter(torch.zeros(1))
+        self.motion = nn.Parameter(torch.ones(1)) if motion_residual else None
         for conv in (self.bottleneck, self.head_forward, self.head_backward):
             if conv is not None:
                 nn.init.xavier_uniform_(conv.weight)
                 if conv.bias is not None:
                     nn.init.zeros_(conv.bias)
+        if motion_residual:  # start from the motion net's own prediction
+            nn.init.zeros_(self.head_forward.weight)
+            nn.init.zeros_(self.head_backward.weight)
 
     @property
     def appearance_channels(self) -> int:
@@ -141,7 +161,7 @@ class ConvGRUFusion(nn.Module):
         motion = resize_saliency(saliency.to(features.dtype), tuple(features.shape[-2:]))[:, :, None]
         if self.bottleneck is None:
             return motion
-        reduced = F.relu(self.bottleneck(features.flatten(0, 1))).unflatten(0, (batch, steps))
+        reduced = F.relu(self.bottleneck(self.feature_dropout(features.flatten(0, 1)))).unflatten(0, (batch, steps))
         return torch.cat([reduced, motion], dim=2)
 
     def forward(self, features: torch.Tensor, saliency: torch.Tensor) -> torch.Tensor:
@@ -152,3 +172,19 @@ class ConvGRUFusion(nn.Module):
         logits = (self.head_forward(forward_states.flatten(0, 1))
                   + self.head_backward(backward_states.flatten(0, 1))) + self.head_bias
         return logits[:, 0].unflatten(0, (batch, steps))
+
+    @property
+    def motion_weight(self) -> float:
+        """The weight of the motion map's logit in :meth:`frame_logits` (0 without ``motion_residual``)."""
+        return float(self.motion.detach()) if self.motion is not None else 0.0
+
+    def frame_logits(self, logits: torch.Tensor, saliency: torch.Tensor) -> torch.Tensor:
+        """Logits ``(N, H, W)`` at the frame size from logits ``(N, h, w)`` at the feature size and the motion
+        maps ``(N, H, W)`` in [0, 1] that went in: bilinear upsampling, plus the motion map's logit with
+        ``motion_residual`` (see the class documentation)."""
+        out = F.interpolate(logits[:, None], size=tuple(saliency.shape[-2:]), mode="bilinear", align_corners=False)[:, 0]
+        if self.motion is None:
+            return out
+        saliency = saliency.to(out.dtype)
+        present = (saliency.flatten(1).amax(1) > 0).to(out.dtype)[:, None, None]
+        return out + self.motion * present * torch.logit(saliency, eps=self.MOTION_EPS)

@@ -211,7 +211,7 @@ def plot_history(history: list[dict], path: Path) -> None:
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
     left.plot(epochs, [r["train_loss"] for r in history], "o-", label="train")
     left.plot(epochs, [r["val_loss"] for r in history], "s-", label="validation")
-    left.set_xlabel("epoch"), left.set_ylabel("BCE loss"), left.legend(), left.grid(alpha=0.3)
+    left.set_xlabel("epoch"), left.set_ylabel("loss (validation: BCE)"), left.legend(), left.grid(alpha=0.3)
     right.plot(epochs, [r["val_j"] for r in history], "o-", color="tab:green")
     right.set_xlabel("epoch"), right.set_ylabel("validation J mean (no CRF)"), right.grid(alpha=0.3)
     for boundary in [i for i in range(1, len(history)) if history[i]["phase"] != history[i - 1]["phase"]]:

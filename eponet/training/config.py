@@ -13,13 +13,14 @@ from eponet.core.errors import SpecError
 from eponet.core.params import Param, validate_params
 from eponet.core.spec import apply_overrides, default_cache_dir, parse_spec
 from eponet.core.registry import nearest
+from eponet.training.losses import LOSSES
 
 __all__ = ["TASKS", "TrainConfig", "Phase", "DataSource", "load_train_config", "parse_train_config"]
 
 #: What ``eponet train`` can train: the EpO motion network, or the EpO+ fusion on top of a trained one.
 TASKS = ("motion_net", "fusion")
-TOP_LEVEL = ("task", "seed", "model", "geometry", "phases", "validation", "optimizer", "input_dropout", "augment",
-             "output", "cache", "device", "threads")
+TOP_LEVEL = ("task", "seed", "model", "geometry", "phases", "validation", "optimizer", "loss", "input_dropout",
+             "augment", "output", "cache", "device", "threads")
 FUSION_TOP_LEVEL = TOP_LEVEL + ("motion_net", "appearance", "clips")
 
 _MODEL = (
@@ -47,6 +48,11 @@ _AUGMENT = (
     Param("crop", "list", [224, 384], "random crop size [height, width] (null: whole frames)", nullable=True),
     Param("flip", "bool", True, "random left-right flips"),
 )
+_LOSS = (
+    Param("name", "choice", "bce", "training loss: bce (the paper) or bce+iou (adds a per-frame soft Jaccard term, "
+          "which optimises J directly)", choices=LOSSES),
+    Param("iou_weight", "float", 1.0, "weight of the soft Jaccard term (bce+iou)", minimum=0.0),
+)
 _OUTPUT = (Param("dir", "path", None, "folder for checkpoints, weights, curves and the model card", required=True),)
 _CACHE = (
     Param("enabled", "bool", True, "reuse cached flow, trajectories and ED"),
@@ -71,6 +77,10 @@ _FUSION_MODEL = (
           minimum=1),
     Param("hidden", "int", 64, "ConvGRU state channels (not given in the paper)", minimum=1),
     Param("kernel_size", "int", 3, "ConvGRU kernel size (odd; not given in the paper)", minimum=1),
+    Param("motion_residual", "bool", False, "predict a correction of the motion net: add the full-resolution "
+          "motion map's logit (learned weight from 1; classifier from 0) to the upsampled logits (eponet extension)"),
+    Param("feature_dropout", "float", 0.0, "probability of dropping an appearance channel in training "
+          "(Dropout2d before the bottleneck; eponet extension)", minimum=0.0, maximum=0.99),
 )
 _FUSION_OPTIMIZER = (
     Param("name", "choice", "rmsprop", "optimiser (the paper: RMSProp)", choices=("rmsprop", "sgd", "adam", "adamw")),
@@ -147,6 +157,7 @@ class TrainConfig:
     document: dict = field(default_factory=dict)
     stages: dict = field(default_factory=dict)
     clips: dict = field(default_factory=dict)
+    loss: dict = field(default_factory=lambda: {"name": "bce", "iou_weight": 1.0})
 
 
 def load_train_config(path: str | Path, overrides: list[str] = ()) -> TrainConfig:
@@ -206,6 +217,7 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
         problems.append(f"model.kernel_size: expected an odd integer, got {model['kernel_size']}")
     optimizer = section("optimizer", schemas["optimizer"])
     dropout = section("input_dropout", schemas["input_dropout"])
+    loss = section("loss", _LOSS)
     clips = section("clips", schemas["clips"]) if task == "fusion" else {}
     augment = section("augment", _AUGMENT)
     crop = augment.get("crop")
@@ -292,5 +304,5 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
         task=task, seed=seed, model=model, geometry=geometry, phases=phases, validation=validation,
         optimizer=optimizer, input_dropout=dropout, augment=augment, output_dir=resolve("output.dir", output["dir"]),
         cache_enabled=cache["enabled"], cache_dir=resolve("cache.dir", cache["dir"]) or default_cache_dir(),
-        device=device, threads=threads, file=file, document=document, stages=stages, clips=clips,
+        device=device, threads=threads, file=file, document=document, stages=stages, clips=clips, loss=loss,
     )

@@ -21,6 +21,7 @@ from eponet.training.augment import drop_motion_maps, random_clip_crop_flip
 from eponet.training.base import Trainer, data_line, history_table, sequence_j
 from eponet.training.config import DataSource, TrainConfig
 from eponet.training.data import load_motion_sequences
+from eponet.training.losses import segmentation_loss
 
 __all__ = ["FusionSequence", "FusionTrainer", "probe_channels", "fusion_model_card"]
 
@@ -153,17 +154,16 @@ class FusionTrainer(Trainer):
         return float(np.mean(losses))
 
     def _clip_loss(self, features: np.ndarray, saliency: np.ndarray, masks: np.ndarray):
-        """Mean BCE of a batch of clips: features ``(B, T, C, h, w)``, saliency and masks ``(B, T, H, W)``; the
-        logits are bilinearly upsampled to the masks' size."""
+        """The training loss (``loss``: BCE, or BCE plus soft Jaccard per frame) of a batch of clips: features
+        ``(B, T, C, h, w)``, saliency and masks ``(B, T, H, W)``; logits at the masks' size by
+        :meth:`~eponet.fusion.ConvGRUFusion.frame_logits`."""
         import torch
-        import torch.nn.functional as F
 
         f = torch.from_numpy(features).to(self.device)
         s = torch.from_numpy(saliency).to(self.device)
         y = torch.from_numpy(masks.astype(np.float32)).to(self.device)
-        logits = self.model(f, s)
-        logits = F.interpolate(logits.flatten(0, 1)[:, None], size=y.shape[-2:], mode="bilinear", align_corners=False)
-        return F.binary_cross_entropy_with_logits(logits[:, 0], y.flatten(0, 1))
+        logits = self.model.frame_logits(self.model(f, s).flatten(0, 1), s.flatten(0, 1))
+        return segmentation_loss(logits, y.flatten(0, 1), **self.config.loss)
 
     def validate(self, data: list[FusionSequence]) -> tuple[float, float]:
         """(mean BCE loss per frame, mean J over sequences): each whole sequence in one bidirectional pass,
@@ -177,7 +177,9 @@ class FusionTrainer(Trainer):
         for seq in data:
             logits = video_logits(self.model, seq.features.astype(np.float32), seq.saliency.astype(np.float32),
                                   window=None, device=self.device)
-            logits = F.interpolate(logits[:, None], size=seq.masks.shape[-2:], mode="bilinear", align_corners=False)[:, 0]
+            with torch.inference_mode():
+                saliency = torch.from_numpy(seq.saliency.astype(np.float32)).to(self.device)
+                logits = self.model.frame_logits(logits.to(self.device), saliency).cpu()
             y = torch.from_numpy(seq.masks.astype(np.float32))
             losses.append(float(F.binary_cross_entropy_with_logits(logits, y)) * len(y))
             scores.append(sequence_j((torch.sigmoid(logits) >= 0.5).numpy(), seq.masks.astype(bool)))
@@ -210,7 +212,11 @@ def fusion_model_card(config: TrainConfig, summary: dict, history: list[dict], m
         f"- weights: `{Path(summary['weights']).name}`, sha256 `{summary['sha256']}`",
         f"- architecture: 1x1 bottleneck {model['appearance_channels']} -> {model['bottleneck']} channels (+ ReLU), "
         f"concatenated with the motion map; bidirectional ConvGRU, {model['hidden']} state channels, "
-        f"{model['kernel_size']}x{model['kernel_size']} kernels; per-frame 1x1 classifier on both directions' states",
+        f"{model['kernel_size']}x{model['kernel_size']} kernels; per-frame 1x1 classifier on both directions' states"
+        + ("; a correction of the motion net: plus the full-resolution motion map's logit with a learned weight "
+           "(motion_residual)" if model.get("motion_residual") else "")
+        + (f"; appearance channels dropped with probability {model['feature_dropout']} in training"
+           if model.get("feature_dropout") else ""),
         "- appearance: " + (f"{stages['appearance'].plugin} {stages['appearance'].params}" if "appearance" in stages
                             else f"{model['appearance_channels']} channels (not recorded)")
         + " (the paper: DeepLab fc6, 1024 channels at stride 8)",
@@ -220,7 +226,7 @@ def fusion_model_card(config: TrainConfig, summary: dict, history: list[dict], m
         f"{summary['epochs']} epochs in {summary['train_seconds'] / 60:.1f} min on {platform.machine()} "
         f"({torch.get_num_threads()} threads, device {config.device})",
         f"- optimiser: {o['name']}, {schedule}, momentum {o['momentum']}, weight decay {o['weight_decay']}, "
-        f"{o['batch_size']} clip(s) of {config.clips.get('length')} frames per step (BPTT, BCE), gradients clipped to "
+        f"{o['batch_size']} clip(s) of {config.clips.get('length')} frames per step (BPTT, {config.loss['name']} loss), gradients clipped to "
         f"{'[-%g, %g]' % (o['clip_gradients'], o['clip_gradients']) if o['clip_gradients'] else 'no limit'}",
         f"- input-dropout: motion map zeroed on {d['probability']:.0%} of the frames of "
         + (", ".join(d["sequences"]) if d["sequences"] else "every sequence"),

@@ -15,6 +15,7 @@ from eponet.training.augment import InputDropout, random_crop_flip
 from eponet.training.base import HISTORY_FIELDS, Trainer, data_line, history_table, plot_history, sequence_j
 from eponet.training.config import DataSource, TrainConfig
 from eponet.training.data import SequenceData, load_motion_sequences
+from eponet.training.losses import segmentation_loss
 
 __all__ = ["MotionNetTrainer", "sequence_j", "model_card", "plot_history", "HISTORY_FIELDS"]
 
@@ -75,7 +76,6 @@ class MotionNetTrainer(Trainer):
 
     def train_epoch(self, data: list[SequenceData], optimizer, epoch: int, samples: int | None) -> float:
         import torch
-        import torch.nn.functional as F
 
         rng = np.random.default_rng([self.config.seed, epoch])
         index = np.array([(s, t) for s, seq in enumerate(data) for t in range(len(seq.masks))])
@@ -103,7 +103,7 @@ class MotionNetTrainer(Trainer):
             x = torch.from_numpy(batch).to(self.device)
             x = self.model.select_inputs(x).contiguous(memory_format=torch.channels_last)
             y = torch.from_numpy(np.stack(masks).astype(np.float32)).to(self.device)[:, None]
-            loss = F.binary_cross_entropy_with_logits(self.model(x), y)
+            loss = segmentation_loss(self.model(x), y, **self.config.loss)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -153,6 +153,8 @@ def model_card(config: TrainConfig, summary: dict, history: list[dict]) -> str:
         f"({torch.get_num_threads()} threads, device {config.device})",
         f"- optimiser: {o['name']}, lr {o['lr']} x {o['gamma']} every {o['step_epochs']} epochs of a phase, "
         f"momentum {o['momentum']}, weight decay {o['weight_decay']}, batch {o['batch_size']}",
+        f"- loss: {config.loss['name']}" + (f" (soft Jaccard weight {config.loss['iou_weight']})"
+                                             if config.loss["name"] != "bce" else ""),
         f"- input-dropout: {d['probability']:.0%} of samples, ED zeroed for {d['zero_epochs']} epochs, then {d['then']}",
         f"- augmentation: crops {a['crop']}, flips {a['flip']}",
         "- geometry: " + (", ".join(f"{k} {v.plugin} {v.params}" for k, v in config.geometry.stages.items())

@@ -75,15 +75,19 @@ def test_fusion_spec_is_validated_as_a_whole(tmp_path, davis, motion_weights):
     assert config.stages["motion_net"].plugin == "epo_unet" and config.stages["appearance"].plugin == "none"
     assert config.stages["motion_net"].params["weights"] == str(motion_weights)
     assert set(config.geometry.stages) == {"flow", "trajectories", "rigidity", "appearance"}  # no motion net
+    assert config.loss == {"name": "bce", "iou_weight": 1.0}  # the paper's loss unless the spec says otherwise
+    assert load_train_config(_spec(tmp_path, loss={"name": "bce+iou", "iou_weight": 0.5})).loss == {
+        "name": "bce+iou", "iou_weight": 0.5}
     with pytest.raises(SpecError) as error:
         load_train_config(_spec(tmp_path, motion_net={"weights": "gone.pt"}, clips={"length": 1},
-                                model={"kernel_size": 4}, input_dropot={},
+                                model={"kernel_size": 4}, input_dropot={}, loss={"name": "dice"},
                                 validation={"rbsf": {"dir": "x"}}))
     problems = "\n".join(error.value.problems)
     assert "motion_net.weights: " in problems and "gone.pt" in problems
     assert "clips.length: expected an integer >= 2, got 1" in problems
     assert "model.kernel_size: expected an odd integer, got 4" in problems
     assert "input_dropot: unknown top-level key (did you mean 'input_dropout'?)" in problems
+    assert 'loss.name: expected one of \'bce\', \'bce+iou\', got "dice"' in problems
     assert "validation: task fusion trains on DAVIS-layout data" in problems
     with pytest.raises(SpecError, match="task: expected one of 'motion_net', 'fusion', got 'fusoin'"):
         load_train_config(_spec(tmp_path, task="fusoin"))

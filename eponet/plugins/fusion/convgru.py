@@ -49,7 +49,6 @@ class ConvGRUStage:
     def fuse(self, features: np.ndarray, saliency: np.ndarray) -> np.ndarray:
         """Foreground probability float32 ``(F, H, W)`` from features ``(F, C, h, w)`` and saliency ``(F, H, W)``."""
         import torch
-        import torch.nn.functional as F
 
         from eponet.fusion import video_logits
 
@@ -60,10 +59,11 @@ class ConvGRUStage:
         logits = video_logits(self.model.to(self.device), features, saliency, window=self.window,
                               overlap=self.overlap, blend=self.blend, device=self.device)
         out = np.empty(saliency.shape, np.float32)
-        for start in range(0, len(out), 16):  # upsample a few frames at a time: bounded temporaries
-            chunk = F.interpolate(logits[start : start + 16, None], size=saliency.shape[-2:], mode="bilinear",
-                                  align_corners=False)
-            out[start : start + len(chunk)] = torch.sigmoid(chunk[:, 0]).numpy()
+        with torch.inference_mode():
+            for start in range(0, len(out), 16):  # upsample a few frames at a time: bounded temporaries
+                chunk = self.model.cpu().frame_logits(logits[start : start + 16],
+                                                      torch.from_numpy(saliency[start : start + 16]).float())
+                out[start : start + len(chunk)] = torch.sigmoid(chunk).numpy()
         return out
 
 

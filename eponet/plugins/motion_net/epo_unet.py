@@ -12,7 +12,7 @@ from eponet.core.params import Param
 from eponet.core.progress import track
 from eponet.weights import resolve_weights
 
-__all__ = ["EpoUNetStage", "load_unet"]
+__all__ = ["EpoUNetStage", "load_unet", "mirror_motion_images"]
 
 log = logging.getLogger(__name__)
 
@@ -41,13 +41,24 @@ def _device(name: str):
     return torch.device(name)
 
 
-class EpoUNetStage:
-    """Per-frame inference of the U-Net, in batches, on CPU or GPU."""
+def mirror_motion_images(batch):
+    """Left-right mirror of a torch tensor of motion images ``(B, 3, H, W)`` (dx, dy, ED): the columns reversed
+    and dx negated, which is exactly the motion image of the mirrored video (a new tensor)."""
+    flipped = batch.flip(-1)
+    flipped[:, 0] = -flipped[:, 0]
+    return flipped
 
-    def __init__(self, *, weights: str = "epo-davis", sha256: str | None = None, batch_size: int = 8, device: str = "auto"):
+
+class EpoUNetStage:
+    """Per-frame inference of the U-Net, in batches, on CPU or GPU; with ``flip``, the mean of the foreground
+    probabilities of each motion image and of its mirror image (test-time augmentation, twice the cost)."""
+
+    def __init__(self, *, weights: str = "epo-davis", sha256: str | None = None, batch_size: int = 8, device: str = "auto",
+                 flip: bool = False):
         self.model, self.sha256 = load_unet(weights, sha256)
         self.batch_size = batch_size
         self.device = _device(device)
+        self.flip = flip
 
     def predict(self, motion_images: np.ndarray) -> np.ndarray:
         import torch
@@ -58,9 +69,18 @@ class EpoUNetStage:
             starts = range(0, len(motion_images), self.batch_size)
             for start in track(starts, desc="motion net", total=len(starts)):
                 batch = torch.from_numpy(motion_images[start : start + self.batch_size]).to(self.device)
-                batch = model.select_inputs(batch).contiguous(memory_format=torch.channels_last)
-                out[start : start + len(batch)] = torch.sigmoid(model(batch))[:, 0].float().cpu().numpy()
+                prob = self._probability(model, batch)
+                if self.flip:
+                    prob = 0.5 * (prob + self._probability(model, mirror_motion_images(batch)).flip(-1))
+                out[start : start + len(batch)] = prob.float().cpu().numpy()
         return out
+
+    @staticmethod
+    def _probability(model, batch):
+        import torch
+
+        batch = model.select_inputs(batch).contiguous(memory_format=torch.channels_last)
+        return torch.sigmoid(model(batch))[:, 0]
 
 
 def _check(params: dict) -> list[str]:
@@ -83,6 +103,8 @@ def eponet_stages():
                 Param("sha256", "str", None, "expected sha256 of a weights file (checked before loading)", nullable=True),
                 Param("batch_size", "int", 8, "frames per inference batch", minimum=1),
                 Param("device", "choice", "auto", "where to run: auto = GPU when available", choices=("auto", "cpu", "cuda")),
+                Param("flip", "bool", False, "test-time augmentation: average with the prediction on the mirrored "
+                      "motion images (dx negated); twice the cost"),
             ),
             doc="EpO U-Net motion network on (dx, dy, ED) motion images",
             check=_check,

@@ -38,6 +38,40 @@ def test_output_shapes_and_motion_only_variant():
         _model()(features[:, :, :5], saliency)
 
 
+def test_motion_residual_starts_from_the_motion_map_and_skips_dropped_frames():
+    features, saliency = _inputs(frames=4)
+    plain = _model()
+    with torch.no_grad():
+        logits = plain(features, saliency)[0]
+        up = torch.nn.functional.interpolate(logits[:, None], size=saliency.shape[-2:], mode="bilinear",
+                                             align_corners=False)[:, 0]
+        assert torch.equal(plain.frame_logits(logits, saliency[0]), up)  # the paper's network: upsampling only
+        residual = _model(motion_residual=True)
+        assert residual.motion_weight == 1.0
+        start = residual.frame_logits(residual(features, saliency)[0], saliency[0])
+        # a fresh residual network predicts exactly the motion map (clipped to [1e-3, 1 - 1e-3])
+        torch.testing.assert_close(torch.sigmoid(start), saliency[0].clamp(1e-3, 1 - 1e-3), atol=1e-6, rtol=0)
+        # a frame whose motion map was zeroed (input-dropout) gets no residual
+        dropped = saliency[0].clone()
+        dropped[1] = 0
+        out = residual.frame_logits(torch.zeros(4, 6, 9), dropped)
+        assert torch.equal(out[1], torch.zeros_like(out[1])) and out[0].abs().min() > 0
+        residual.motion.fill_(0.5)
+        torch.testing.assert_close(residual.frame_logits(torch.zeros(4, 6, 9), saliency[0]),
+                                   0.5 * torch.logit(saliency[0], eps=1e-3))
+
+
+def test_feature_dropout_acts_in_training_only():
+    features, saliency = _inputs(frames=3)
+    model = _model(feature_dropout=0.5)
+    with torch.no_grad():
+        assert torch.equal(model(features, saliency), model(features, saliency))  # eval: deterministic
+        model.train()
+        torch.manual_seed(0)
+        a = model(features, saliency)
+        assert not torch.equal(a, model(features, saliency))
+
+
 def test_update_gate_input_bias_starts_at_one_and_gru_weights_are_he():
     model = _model(channels=64, bottleneck=32, hidden=16)
     for cell in (model.forward_cell, model.backward_cell):
@@ -118,11 +152,53 @@ def test_stage_fuses_at_the_saliency_size_and_checks_channels(tmp_path):
     assert out.shape == (9, 10, 15) and out.dtype == np.float32 and 0 < out.min() and out.max() < 1
     with pytest.raises(StageError, match="expect 6 appearance channels"):
         stage.fuse(features[0, :, :4].numpy(), saliency[0].numpy())
+    # weights with a motion residual keep it through saving and loading, and the stage applies it
+    residual = _model(motion_residual=True)
+    with torch.no_grad():
+        residual.motion.fill_(0.7)
+        residual.head_forward.weight.normal_()
+    _save_weights(tmp_path / "residual.pt", residual)
+    loaded = ConvGRUStage(weights=str(tmp_path / "residual.pt"), window=None, device="cpu")
+    assert loaded.model.config["motion_residual"] and loaded.model.motion_weight == pytest.approx(0.7)
+    with torch.no_grad():
+        expected = torch.sigmoid(residual.frame_logits(residual(features[:1], saliency[:1])[0], saliency[0]))
+    np.testing.assert_allclose(loaded.fuse(features[0].numpy(), saliency[0].numpy()), expected.numpy(), atol=1e-5)
+
+
+def test_shipped_fusion_weights_match_their_catalogue_checksum_and_stay_small():
+    from eponet.weights import builtin_weights, sha256_of
+
+    entry = builtin_weights()["epo-plus-davis"]
+    assert entry.kind == "fusion"
+    assert entry.file.stat().st_size < 20 * 2**20
+    assert sha256_of(entry.file) == entry.sha256
+    assert (entry.file.parent / "epo-plus-davis.md").is_file()  # the model card sits beside the weights
+    stage = ConvGRUStage()  # the default loads the built-in weights
+    assert stage.model.appearance_channels == 472 and stage.model.config["motion_residual"]
 
 
 def test_missing_builtin_weights_is_a_clear_error(tmp_path):
-    with pytest.raises(MissingWeights, match="'epo-plus-davis': neither a built-in name"):
-        ConvGRUStage()
+    with pytest.raises(MissingWeights, match="'epo-plus-davos': neither a built-in name"):
+        ConvGRUStage(weights="epo-plus-davos")
     _save_weights(tmp_path / "fusion.pt", _model())
     with pytest.raises(MissingWeights, match="checksum mismatch"):
         ConvGRUStage(weights=str(tmp_path / "fusion.pt"), sha256="0" * 64)
+
+
+def test_epo_plus_preset_with_the_shipped_weights_on_the_embedded_demo(tmp_path):
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    out = tmp_path / "demo"
+    result = subprocess.run(
+        [sys.executable, "-m", "eponet.run", str(root / "examples" / "demo.yaml"), "-q", "--set", "preset=epo+",
+         "--set", f"output.dir={out}", "--set", "output.save=[masks]", "--set", f"cache.dir={tmp_path / 'cache'}"],
+        capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    manifest = json.loads((out / "run.json").read_text())
+    assert manifest["plugins"]["fusion"]["plugin"] == "convgru"
+    assert manifest["plugins"]["appearance"]["plugin"] == "efficientnet_lite0"
+    assert manifest["evaluation"]["overall"]["J"]["mean"] >= 0.6

@@ -33,6 +33,20 @@ def test_batched_inference_at_odd_sizes_gives_probabilities(tmp_path):
     np.testing.assert_allclose(out, single, atol=1e-5)
 
 
+def test_flip_averages_with_the_mirrored_video_and_is_mirror_symmetric(tmp_path):
+    path = _save(tmp_path / "w.pt", depth=2, widths=(4, 8), head_channels=4)
+    motion = np.random.default_rng(1).random((3, 3, 21, 34), dtype=np.float32) - 0.5
+    plain = EpoUNetStage(weights=str(path), device="cpu").predict(motion)
+    flip = EpoUNetStage(weights=str(path), device="cpu", flip=True)
+    mirrored = motion[..., ::-1].copy()
+    mirrored[:, 0] *= -1  # the motion images of the mirrored video: columns reversed, dx negated
+    on_mirror = EpoUNetStage(weights=str(path), device="cpu").predict(mirrored)
+    np.testing.assert_allclose(flip.predict(motion), 0.5 * (plain + on_mirror[..., ::-1]), atol=1e-6)
+    # the averaged prediction of the mirrored video is the mirror of the averaged prediction
+    np.testing.assert_allclose(flip.predict(mirrored), flip.predict(motion)[..., ::-1], atol=1e-6)
+    assert np.abs(plain - on_mirror[..., ::-1]).max() > 1e-3  # the untrained network is not symmetric by itself
+
+
 def test_checksum_mismatch_and_missing_file_are_clear_errors(tmp_path):
     path = _save(tmp_path / "w.pt", depth=2, widths=(4, 8), head_channels=4)
     with pytest.raises(MissingWeights, match="checksum mismatch"):
