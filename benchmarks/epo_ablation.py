@@ -72,11 +72,17 @@ def absolutise(doc: dict, base_dir: Path) -> dict:
 
 
 def train(name: str, out: Path, threads: int, retrain: bool) -> tuple[str, float]:
-    folder = out / name
+    return name, train_variant(out / name, lambda: absolutise(variant_document(yaml.safe_load(RECIPE.read_text()), name),
+                                                              RECIPE.parent), threads, retrain)
+
+
+def train_variant(folder: Path, document, threads: int | None, retrain: bool) -> float:
+    """Train the spec ``document()`` (a callable: only built when needed) into ``folder`` with ``python -m
+    eponet.train`` (resuming from its checkpoint when one is there); returns the training seconds. A folder
+    with ``weights.pt`` is reused unless ``retrain``."""
     if (folder / "weights.pt").is_file() and not retrain:
-        return name, json.loads((folder / "summary.json").read_text())["train_seconds"]
-    base = yaml.safe_load(RECIPE.read_text())
-    doc = absolutise(variant_document(base, name), RECIPE.parent)
+        return json.loads((folder / "summary.json").read_text())["train_seconds"]
+    doc = document()
     doc["output"] = {"dir": str(folder)}
     doc["threads"] = threads
     folder.mkdir(parents=True, exist_ok=True)
@@ -87,7 +93,7 @@ def train(name: str, out: Path, threads: int, retrain: bool) -> tuple[str, float
     with open(folder / "train.log", "w") as log:
         subprocess.run([sys.executable, "-m", "eponet.train", str(spec), "-q", *resume], check=True, stdout=log,
                        stderr=subprocess.STDOUT)
-    return name, time.time() - tick
+    return time.time() - tick
 
 
 def validation_root(davis: Path, sequences: list[str], out: Path) -> Path:

@@ -21,16 +21,14 @@ from __future__ import annotations
 import argparse
 import copy
 import json
-import subprocess
 import sys
-import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from epo_ablation import ROOT, validation_root  # noqa: E402
+from epo_ablation import ROOT, train_variant, validation_root  # noqa: E402
 
 RECIPE = ROOT / "examples" / "train-epo-plus.yaml"
 VARIANTS = ("dropout", "no-dropout", "paper")
@@ -52,21 +50,8 @@ def variant_document(base: dict, name: str, motion_net: Path) -> dict:
 
 
 def train(name: str, motion_net: Path, out: Path, threads: int | None, retrain: bool) -> tuple[str, float]:
-    folder = out / name
-    if (folder / "weights.pt").is_file() and not retrain:
-        return name, json.loads((folder / "summary.json").read_text())["train_seconds"]
-    doc = variant_document(yaml.safe_load(RECIPE.read_text()), name, motion_net)
-    doc["output"] = {"dir": str(folder)}
-    doc["threads"] = threads
-    folder.mkdir(parents=True, exist_ok=True)
-    spec = folder / "train.yaml"
-    spec.write_text(yaml.safe_dump(doc, sort_keys=False))
-    resume = ["--resume"] if (folder / "checkpoint-last.pt").is_file() and not retrain else []
-    tick = time.time()
-    with open(folder / "train.log", "w") as log:
-        subprocess.run([sys.executable, "-m", "eponet.train", str(spec), "-q", *resume], check=True, stdout=log,
-                       stderr=subprocess.STDOUT)
-    return name, time.time() - tick
+    return name, train_variant(out / name, lambda: variant_document(yaml.safe_load(RECIPE.read_text()), name, motion_net),
+                               threads, retrain)
 
 
 def score(preset: str, stages: dict, out: Path, davis: Path, sequences: list[str]) -> dict:

@@ -55,3 +55,16 @@ def frames_dir(tmp_path) -> Path:
     folder = tmp_path / "clip"
     write_frames(folder, textured_frames())
     return folder
+
+
+def assert_shipped_weights(name: str, kind: str):
+    """A built-in weights entry exists for ``kind``, is small (< 20 MB), matches its catalogue checksum and has
+    its model card (``<name>.md``) beside it; returns the entry."""
+    from eponet.weights import builtin_weights, sha256_of
+
+    entry = builtin_weights()[name]
+    assert entry.kind == kind
+    assert entry.file.stat().st_size < 20 * 2**20
+    assert sha256_of(entry.file) == entry.sha256
+    assert (entry.file.parent / f"{name}.md").is_file()
+    return entry

@@ -166,13 +166,9 @@ def test_stage_fuses_at_the_saliency_size_and_checks_channels(tmp_path):
 
 
 def test_shipped_fusion_weights_match_their_catalogue_checksum_and_stay_small():
-    from eponet.weights import builtin_weights, sha256_of
+    from tests.conftest import assert_shipped_weights
 
-    entry = builtin_weights()["epo-plus-davis"]
-    assert entry.kind == "fusion"
-    assert entry.file.stat().st_size < 20 * 2**20
-    assert sha256_of(entry.file) == entry.sha256
-    assert (entry.file.parent / "epo-plus-davis.md").is_file()  # the model card sits beside the weights
+    assert_shipped_weights("epo-plus-davis", "fusion")
     stage = ConvGRUStage()  # the default loads the built-in weights
     assert stage.model.appearance_channels == 472 and stage.model.config["motion_residual"]
 

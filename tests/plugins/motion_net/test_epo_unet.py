@@ -10,7 +10,6 @@ import torch
 from eponet.core.errors import MissingWeights
 from eponet.nets import EpoUNet
 from eponet.plugins.motion_net.epo_unet import EpoUNetStage
-from eponet.weights import builtin_weights, sha256_of
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -59,11 +58,9 @@ def test_checksum_mismatch_and_missing_file_are_clear_errors(tmp_path):
 
 
 def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
-    entry = builtin_weights()["epo-davis"]
-    assert entry.kind == "motion_net"
-    assert entry.file.stat().st_size < 20 * 2**20
-    assert sha256_of(entry.file) == entry.sha256
-    assert (entry.file.parent / "epo-davis.md").is_file()  # the model card sits beside the weights
+    from tests.conftest import assert_shipped_weights
+
+    assert_shipped_weights("epo-davis", "motion_net")
     EpoUNetStage()  # the default loads the built-in weights
 
 
