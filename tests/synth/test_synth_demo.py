@@ -34,6 +34,7 @@ def test_committed_demo_matches_its_generator():
         mse = np.mean((read_image(frame_path).astype(float) - clip.frames[t]) ** 2)
         assert 10 * np.log10(255**2 / mse) > 30  # JPEG quality 90 (exact bytes depend on the JPEG library)
     cameras = np.load(root / "Cameras" / "240p" / "demo.npz")
-    np.testing.assert_array_equal(cameras["R"], clip.R)
+    # the last bits of the rotations depend on the numpy / scipy build, the geometry does not
+    np.testing.assert_allclose(cameras["R"], clip.R, rtol=0, atol=1e-12)
     total = sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
     assert total < 1.5e6
