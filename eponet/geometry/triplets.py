@@ -15,7 +15,7 @@ With ``degeneracy="gric"`` the trifocal and homography fits compete through Torr
 background's motion is explained by a homography within the noise (most consecutive video frames), the
 epipolar model is degenerate, can absorb an independently moving object, and the homography is chosen. The
 homography side of the comparison may use a second homography for the dominant one's outliers ("two
-independent planar motions"), so that an object the epipolar model absorbs as fake parallax does not count
+independent planar motions"), so that an object the epipolar model absorbs as apparent parallax does not count
 in its favour.
 
 References
@@ -370,7 +370,7 @@ def _two_homographies_gric(e2h, points, sigma2, rng, settings: RobustSettings) -
     Each point takes the smaller of its two residuals (r = 2 * views; d = 2; k = 16 per homography pair for
     triplets, 8 per homography for pairs). This is the degenerate alternative to the epipolar model when an
     independently moving, roughly planar (or distant) object is present: the more flexible epipolar model can
-    absorb such an object as fake parallax and then wins against a single homography, which counts the object
+    absorb such an object as apparent parallax and then wins against a single homography, which counts the object
     as outliers. Returns None when too few outliers remain or no second homography can be fitted.
     """
     views = len(points)
