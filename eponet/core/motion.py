@@ -6,7 +6,7 @@ import numpy as np
 
 from .types import FlowPair
 
-__all__ = ["FLOW_SCALE", "motion_images", "frame_flow"]
+__all__ = ["FLOW_SCALE", "motion_images", "frame_flow", "mirror_motion_images"]
 
 #: Flow channels are divided by this many pixels *of the processing resolution* (at the paper's 427x240,
 #: a displacement of 20 px, i.e. ~5% of the width, becomes 1.0). Values are not clipped.
@@ -28,3 +28,11 @@ def motion_images(flow: FlowPair, ed_normalised: np.ndarray) -> np.ndarray:
     """
     motion = frame_flow(flow) / FLOW_SCALE
     return np.concatenate([motion.transpose(0, 3, 1, 2), ed_normalised[:, None]], axis=1).astype(np.float32)
+
+
+def mirror_motion_images(images: np.ndarray) -> np.ndarray:
+    """The motion images ``(..., 3, H, W)`` of the left-right mirrored video: columns reversed and dx negated
+    (dy and ED are unchanged by a mirror). A new, contiguous array."""
+    mirrored = np.ascontiguousarray(images[..., ::-1])
+    mirrored[..., 0, :, :] *= -1
+    return mirrored

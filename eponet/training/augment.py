@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from eponet.core.motion import mirror_motion_images
+
 __all__ = ["InputDropout", "random_crop_flip", "random_clip_crop_flip", "drop_motion_maps"]
 
 ED_CHANNEL = 2
@@ -57,8 +59,7 @@ def random_crop_flip(images: np.ndarray, masks: np.ndarray, crop: tuple[int, int
         x = int(rng.integers(0, width - cw + 1))
         images, masks = images[:, y : y + ch, x : x + cw], masks[y : y + ch, x : x + cw]
     if flip and rng.random() < 0.5:
-        images = images[:, :, ::-1].copy()
-        images[0] = -images[0]
+        images = mirror_motion_images(images)
         masks = masks[:, ::-1]
     return np.ascontiguousarray(images), np.ascontiguousarray(masks)
 

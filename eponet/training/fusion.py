@@ -175,11 +175,10 @@ class FusionTrainer(Trainer):
 
         losses, scores = [], []
         for seq in data:
-            logits = video_logits(self.model, seq.features.astype(np.float32), seq.saliency.astype(np.float32),
-                                  window=None, device=self.device)
+            saliency = seq.saliency.astype(np.float32)
+            logits = video_logits(self.model, seq.features.astype(np.float32), saliency, window=None, device=self.device)
             with torch.inference_mode():
-                saliency = torch.from_numpy(seq.saliency.astype(np.float32)).to(self.device)
-                logits = self.model.frame_logits(logits.to(self.device), saliency).cpu()
+                logits = self.model.frame_logits(logits.to(self.device), torch.from_numpy(saliency).to(self.device)).cpu()
             y = torch.from_numpy(seq.masks.astype(np.float32))
             losses.append(float(F.binary_cross_entropy_with_logits(logits, y)) * len(y))
             scores.append(sequence_j((torch.sigmoid(logits) >= 0.5).numpy(), seq.masks.astype(bool)))

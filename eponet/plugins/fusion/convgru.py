@@ -56,14 +56,15 @@ class ConvGRUStage:
         if features.ndim != 4 or features.shape[1] != expected:
             raise StageError(f"fusion convgru: the weights expect {expected} appearance channels, got features of "
                              f"shape {features.shape}; use the appearance stage the fusion was trained with")
-        logits = video_logits(self.model.to(self.device), features, saliency, window=self.window,
-                              overlap=self.overlap, blend=self.blend, device=self.device)
+        model = self.model.to(self.device)
+        logits = video_logits(model, features, saliency, window=self.window, overlap=self.overlap, blend=self.blend,
+                              device=self.device)
         out = np.empty(saliency.shape, np.float32)
         with torch.inference_mode():
             for start in range(0, len(out), 16):  # upsample a few frames at a time: bounded temporaries
-                chunk = self.model.cpu().frame_logits(logits[start : start + 16],
-                                                      torch.from_numpy(saliency[start : start + 16]).float())
-                out[start : start + len(chunk)] = torch.sigmoid(chunk).numpy()
+                maps = torch.from_numpy(np.ascontiguousarray(saliency[start : start + 16], np.float32)).to(self.device)
+                chunk = model.frame_logits(logits[start : start + 16].to(self.device), maps)
+                out[start : start + len(chunk)] = torch.sigmoid(chunk).cpu().numpy()
         return out
 
 

@@ -8,11 +8,12 @@ import numpy as np
 
 from eponet.core.errors import MissingWeights
 from eponet.core.hookspecs import StageSpec, hookimpl
+from eponet.core.motion import mirror_motion_images
 from eponet.core.params import Param
 from eponet.core.progress import track
 from eponet.weights import resolve_weights
 
-__all__ = ["EpoUNetStage", "load_unet", "mirror_motion_images"]
+__all__ = ["EpoUNetStage", "load_unet"]
 
 log = logging.getLogger(__name__)
 
@@ -41,14 +42,6 @@ def _device(name: str):
     return torch.device(name)
 
 
-def mirror_motion_images(batch):
-    """Left-right mirror of a torch tensor of motion images ``(B, 3, H, W)`` (dx, dy, ED): the columns reversed
-    and dx negated, which is exactly the motion image of the mirrored video (a new tensor)."""
-    flipped = batch.flip(-1)
-    flipped[:, 0] = -flipped[:, 0]
-    return flipped
-
-
 class EpoUNetStage:
     """Per-frame inference of the U-Net, in batches, on CPU or GPU; with ``flip``, the mean of the foreground
     probabilities of each motion image and of its mirror image (test-time augmentation, twice the cost)."""
@@ -68,19 +61,19 @@ class EpoUNetStage:
         with torch.inference_mode():
             starts = range(0, len(motion_images), self.batch_size)
             for start in track(starts, desc="motion net", total=len(starts)):
-                batch = torch.from_numpy(motion_images[start : start + self.batch_size]).to(self.device)
-                prob = self._probability(model, batch)
+                images = motion_images[start : start + self.batch_size]
+                prob = self._probability(model, images)
                 if self.flip:
-                    prob = 0.5 * (prob + self._probability(model, mirror_motion_images(batch)).flip(-1))
-                out[start : start + len(batch)] = prob.float().cpu().numpy()
+                    prob = 0.5 * (prob + self._probability(model, mirror_motion_images(images)).flip(-1))
+                out[start : start + len(images)] = prob.float().cpu().numpy()
         return out
 
-    @staticmethod
-    def _probability(model, batch):
+    def _probability(self, model, images: np.ndarray):
+        """Foreground probability ``(B, H, W)`` (a tensor on the stage's device) of motion images ``(B, 3, H, W)``."""
         import torch
 
-        batch = model.select_inputs(batch).contiguous(memory_format=torch.channels_last)
-        return torch.sigmoid(model(batch))[:, 0]
+        batch = model.select_inputs(torch.from_numpy(images).to(self.device))
+        return torch.sigmoid(model(batch.contiguous(memory_format=torch.channels_last)))[:, 0]
 
 
 def _check(params: dict) -> list[str]:
