@@ -9,7 +9,7 @@ import numpy as np
 
 from eponet.core.motion import mirror_motion_images
 
-__all__ = ["InputDropout", "random_crop_flip", "random_clip_crop_flip", "drop_motion_maps"]
+__all__ = ["InputDropout", "random_crop_flip", "shift_flow", "random_clip_crop_flip", "drop_motion_maps"]
 
 ED_CHANNEL = 2
 
@@ -62,6 +62,17 @@ def random_crop_flip(images: np.ndarray, masks: np.ndarray, crop: tuple[int, int
         images = mirror_motion_images(images)
         masks = masks[:, ::-1]
     return np.ascontiguousarray(images), np.ascontiguousarray(masks)
+
+
+def shift_flow(batch: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
+    """Motion images ``(B, 3, H, W)`` with a random constant, normal with standard deviation ``std`` (normalised
+    flow units), added to each sample's dx and to its dy: the same scene seen by a camera panning at another
+    speed, whose rigid background ED does not change. ED is untouched; ``std == 0`` returns ``batch`` itself."""
+    if std <= 0:
+        return batch
+    batch = batch.copy()
+    batch[:, :ED_CHANNEL] += rng.normal(0.0, std, (len(batch), ED_CHANNEL, 1, 1)).astype(batch.dtype)
+    return batch
 
 
 def random_clip_crop_flip(features: np.ndarray, saliency: np.ndarray, masks: np.ndarray, crop: tuple[int, int] | None,

@@ -53,6 +53,7 @@ class Trainer(ABC):
         torch.set_num_threads(config.threads or max(1, os.cpu_count() or 1))
         self.device = torch.device("cuda" if config.device in ("auto", "cuda") and torch.cuda.is_available() else "cpu")
         self.model = None
+        self.ema = None
         self._data: dict[str, list] = {}
 
     # -- what a task provides --------------------------------------------------------------------
@@ -100,11 +101,30 @@ class Trainer(ABC):
             return torch.optim.AdamW(params, lr=o["lr"], weight_decay=o["weight_decay"])
         return torch.optim.Adam(params, lr=o["lr"], weight_decay=o["weight_decay"])
 
+    def _start_ema(self) -> None:
+        """With ``optimizer.ema`` > 0, keep an exponential moving average of the weights (BatchNorm statistics
+        included) in ``self.ema``."""
+        from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+
+        decay = self.config.optimizer.get("ema") or 0.0
+        self.ema = AveragedModel(self.model, multi_avg_fn=get_ema_multi_avg_fn(decay), use_buffers=True) if decay else None
+
+    def after_step(self) -> None:
+        """Called by :meth:`train_epoch` after every optimiser step: updates the weight average."""
+        if self.ema is not None:
+            self.ema.update_parameters(self.model)
+
+    def inference_model(self):
+        """The network that is validated and exported: the weight average when there is one."""
+        return self.ema.module if self.ema is not None else self.model
+
     def _save_checkpoint(self, optimizer, epoch: int, history: list[dict]) -> None:
         import torch
 
         state = {"model": self.model.state_dict(), "optimizer": optimizer.state_dict(), "epoch": epoch,
                  "history": history, "config": json.loads(json.dumps(self.config.document, default=str))}
+        if self.ema is not None:
+            state["ema"] = self.ema.state_dict()
         with atomic_path(self.out / "checkpoint-last.pt") as tmp:
             torch.save(state, tmp)
 
@@ -114,8 +134,9 @@ class Trainer(ABC):
 
         from eponet.weights import sha256_of
 
-        state = {"config": json.loads(json.dumps(self.model.config)),
-                 "state_dict": {k: v.detach().cpu() for k, v in self.model.state_dict().items()}, "meta": meta}
+        model = self.inference_model()
+        state = {"config": json.loads(json.dumps(model.config)),
+                 "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, "meta": meta}
         with atomic_path(path) as tmp:
             torch.save(state, tmp)
         return sha256_of(path)
@@ -132,6 +153,7 @@ class Trainer(ABC):
 
         self.out.mkdir(parents=True, exist_ok=True)
         optimizer = self._optimizer()
+        self._start_ema()
         history: list[dict] = []
         start_epoch = 0
         checkpoint = self.out / "checkpoint-last.pt"
@@ -141,6 +163,8 @@ class Trainer(ABC):
             state = torch.load(checkpoint, map_location=self.device, weights_only=False)
             self.model.load_state_dict(state["model"])
             optimizer.load_state_dict(state["optimizer"])
+            if self.ema is not None and "ema" in state:
+                self.ema.load_state_dict(state["ema"])
             start_epoch, history = state["epoch"] + 1, state["history"]
             log.info("resuming after epoch %d", start_epoch)
         validation = self.data(self.config.validation) if self.config.validation else None

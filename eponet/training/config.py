@@ -37,6 +37,8 @@ _OPTIMIZER = (
     Param("batch_size", "int", 12, "frames per batch", minimum=1),
     Param("step_epochs", "int", 5, "multiply the learning rate by gamma every this many epochs of a phase", minimum=1),
     Param("gamma", "float", 0.1, "learning-rate decay factor", minimum=0.0, maximum=1.0, exclusive_min=True),
+    Param("ema", "float", 0.0, "decay of an exponential moving average of the weights, updated every step, that "
+          "is validated and exported instead of the raw weights (0: off; e.g. 0.998)", minimum=0.0, maximum=0.9999),
 )
 _DROPOUT = (
     Param("probability", "float", 0.2, "fraction of training samples whose ED channel is replaced", minimum=0.0, maximum=1.0),
@@ -47,6 +49,10 @@ _DROPOUT = (
 _AUGMENT = (
     Param("crop", "list", [224, 384], "random crop size [height, width] (null: whole frames)", nullable=True),
     Param("flip", "bool", True, "random left-right flips"),
+)
+_MOTION_AUGMENT = _AUGMENT + (
+    Param("flow_shift", "float", 0.0, "std of a random constant added to each sample's (dx, dy), in FLOW_SCALE units "
+          "(20 px at 427x240): a camera pan of another speed (0: off)", minimum=0.0),
 )
 _LOSS = (
     Param("name", "choice", "bce", "training loss: bce (the paper) or bce+iou (adds a per-frame soft Jaccard term, "
@@ -95,6 +101,8 @@ _FUSION_OPTIMIZER = (
     Param("batch_size", "int", 1, "clips per optimisation step", minimum=1),
     Param("clip_gradients", "float", 50.0, "clip every gradient element to [-value, value] (the paper: 50); null: "
           "no clipping", minimum=0.0, exclusive_min=True, nullable=True),
+    Param("ema", "float", 0.0, "decay of an exponential moving average of the weights, updated every step, that "
+          "is validated and exported instead of the raw weights (0: off)", minimum=0.0, maximum=0.9999),
 )
 _CLIPS = (
     Param("length", "int", 12, "frames per training clip, back-propagated through time (the paper: 12)", minimum=2),
@@ -107,9 +115,9 @@ _FUSION_DROPOUT = (
 )
 _FUSION_STAGES = {"motion_net": "epo_unet", "appearance": "efficientnet_lite0"}
 _SCHEMAS = {
-    "motion_net": {"model": _MODEL, "optimizer": _OPTIMIZER, "input_dropout": _DROPOUT},
+    "motion_net": {"model": _MODEL, "optimizer": _OPTIMIZER, "input_dropout": _DROPOUT, "augment": _MOTION_AUGMENT},
     "fusion": {"model": _FUSION_MODEL, "optimizer": _FUSION_OPTIMIZER, "input_dropout": _FUSION_DROPOUT,
-               "clips": _CLIPS},
+               "clips": _CLIPS, "augment": _AUGMENT},
 }
 
 _PHASE = (
@@ -219,7 +227,7 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
     dropout = section("input_dropout", schemas["input_dropout"])
     loss = section("loss", _LOSS)
     clips = section("clips", schemas["clips"]) if task == "fusion" else {}
-    augment = section("augment", _AUGMENT)
+    augment = section("augment", schemas["augment"])
     crop = augment.get("crop")
     if crop is not None and not (isinstance(crop, list) and len(crop) == 2 and all(isinstance(c, int) and c >= 16 for c in crop)):
         problems.append(f"augment.crop: expected [height, width] of integers >= 16 or null, got {crop!r}")

@@ -150,6 +150,7 @@ class FusionTrainer(Trainer):
             if clip_value is not None:
                 torch.nn.utils.clip_grad_value_(self.model.parameters(), clip_value)
             optimizer.step()
+            self.after_step()
             losses.append(total)
         return float(np.mean(losses))
 
@@ -173,12 +174,13 @@ class FusionTrainer(Trainer):
 
         from eponet.fusion import video_logits
 
+        model = self.inference_model()
         losses, scores = [], []
         for seq in data:
             saliency = seq.saliency.astype(np.float32)
-            logits = video_logits(self.model, seq.features.astype(np.float32), saliency, window=None, device=self.device)
+            logits = video_logits(model, seq.features.astype(np.float32), saliency, window=None, device=self.device)
             with torch.inference_mode():
-                logits = self.model.frame_logits(logits.to(self.device), torch.from_numpy(saliency).to(self.device)).cpu()
+                logits = model.frame_logits(logits.to(self.device), torch.from_numpy(saliency).to(self.device)).cpu()
             y = torch.from_numpy(seq.masks.astype(np.float32))
             losses.append(float(F.binary_cross_entropy_with_logits(logits, y)) * len(y))
             scores.append(sequence_j((torch.sigmoid(logits) >= 0.5).numpy(), seq.masks.astype(bool)))

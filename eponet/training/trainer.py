@@ -11,7 +11,7 @@ import numpy as np
 from eponet.core.errors import InputError
 from eponet.core.io import atomic_write_bytes
 from eponet.core.progress import track
-from eponet.training.augment import InputDropout, random_crop_flip
+from eponet.training.augment import InputDropout, random_crop_flip, shift_flow
 from eponet.training.base import HISTORY_FIELDS, Trainer, data_line, history_table, plot_history, sequence_j
 from eponet.training.config import DataSource, TrainConfig
 from eponet.training.data import SequenceData, load_motion_sequences
@@ -100,6 +100,7 @@ class MotionNetTrainer(Trainer):
                 images = [i[:, :h, :w] for i in images]
                 masks = [m[:h, :w] for m in masks]
             batch, _ = self.dropout.apply(np.stack(images), epoch, rng)
+            batch = shift_flow(batch, self.config.augment.get("flow_shift", 0.0), rng)
             x = torch.from_numpy(batch).to(self.device)
             x = self.model.select_inputs(x).contiguous(memory_format=torch.channels_last)
             y = torch.from_numpy(np.stack(masks).astype(np.float32)).to(self.device)[:, None]
@@ -107,6 +108,7 @@ class MotionNetTrainer(Trainer):
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
+            self.after_step()
             losses.append(loss.item())
         return float(np.mean(losses))
 
@@ -115,15 +117,16 @@ class MotionNetTrainer(Trainer):
         import torch
         import torch.nn.functional as F
 
-        self.model.eval()
+        model = self.inference_model()
+        model.eval()
         losses, scores = [], []
         with torch.inference_mode():
             for seq in data:
                 probs = []
                 for start in range(0, len(seq.masks), 8):
                     x = torch.from_numpy(seq.motion[start : start + 8].astype(np.float32)).to(self.device)
-                    x = self.model.select_inputs(x).contiguous(memory_format=torch.channels_last)
-                    logits = self.model(x)
+                    x = model.select_inputs(x).contiguous(memory_format=torch.channels_last)
+                    logits = model(x)
                     y = torch.from_numpy(seq.masks[start : start + 8].astype(np.float32)).to(self.device)[:, None]
                     losses.append(float(F.binary_cross_entropy_with_logits(logits, y)) * len(y))
                     probs.append(torch.sigmoid(logits)[:, 0].cpu().numpy())
@@ -156,7 +159,8 @@ def model_card(config: TrainConfig, summary: dict, history: list[dict]) -> str:
         f"- loss: {config.loss['name']}" + (f" (soft Jaccard weight {config.loss['iou_weight']})"
                                              if config.loss["name"] != "bce" else ""),
         f"- input-dropout: {d['probability']:.0%} of samples, ED zeroed for {d['zero_epochs']} epochs, then {d['then']}",
-        f"- augmentation: crops {a['crop']}, flips {a['flip']}",
+        f"- augmentation: crops {a['crop']}, flips {a['flip']}, flow shift std {a.get('flow_shift', 0.0)}"
+        + (f"; weights exported as an exponential moving average (decay {o['ema']})" if o.get("ema") else ""),
         "- geometry: " + (", ".join(f"{k} {v.plugin} {v.params}" for k, v in config.geometry.stages.items())
                           if config.geometry else "not recorded"),
         "", "## Data", "",

@@ -1,6 +1,6 @@
 import numpy as np
 
-from eponet.training.augment import InputDropout, random_crop_flip
+from eponet.training.augment import InputDropout, random_crop_flip, shift_flow
 
 
 def _batch(n=200):
@@ -51,3 +51,15 @@ def test_crop_keeps_images_and_mask_aligned():
     out, m = random_crop_flip(images, mask, (4, 5), False, np.random.default_rng(4))
     assert out.shape == (3, 4, 5) and m.shape == (4, 5)
     np.testing.assert_array_equal(out[2], m.astype(np.float32))
+
+
+def test_flow_shift_adds_one_constant_per_sample_to_dx_and_dy_only():
+    batch = _batch(400)
+    out = shift_flow(batch, 0.5, np.random.default_rng(5))
+    np.testing.assert_array_equal(out[:, 2], batch[:, 2])  # ED untouched
+    shift = out[:, :2] - batch[:, :2]
+    np.testing.assert_allclose(shift, shift[:, :, :1, :1] * np.ones_like(shift), atol=1e-6)  # constant per map
+    assert abs(shift[:, :, 0, 0].std() - 0.5) < 0.05 and abs(shift[:, :, 0, 0].mean()) < 0.06
+    assert abs(np.corrcoef(shift[:, 0, 0, 0], shift[:, 1, 0, 0])[0, 1]) < 0.15  # dx and dy drawn independently
+    np.testing.assert_array_equal(batch, _batch(400))  # not in place
+    assert shift_flow(batch, 0.0, np.random.default_rng(5)) is batch

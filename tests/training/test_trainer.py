@@ -76,6 +76,23 @@ def test_resume_continues_exactly(tmp_path):
         assert torch.equal(a, b), name
 
 
+def test_weight_average_is_validated_exported_and_resumed(tmp_path):
+    data = easy_sequences(count=2, frames=6)
+    trainer = _trainer(_config(tmp_path / "a", epochs=3, ema=0.9), data)
+    summary = trainer.run()
+    raw, average = trainer.model.state_dict(), trainer.ema.module.state_dict()
+    assert any(not torch.equal(raw[k], average[k]) for k in raw)  # the average is not the last step's weights
+    exported = torch.load(summary["weights"], weights_only=False)["state_dict"]
+    for name, value in average.items():
+        assert torch.equal(exported[name], value), name  # BatchNorm statistics included
+    interrupted = _trainer(_config(tmp_path / "b", epochs=2, ema=0.9), data)
+    interrupted.run()
+    resumed = _trainer(_config(tmp_path / "b", epochs=3, ema=0.9), data)
+    resumed.run(resume=True)
+    for name, value in trainer.ema.module.state_dict().items():
+        assert torch.equal(value, resumed.ema.module.state_dict()[name]), name
+
+
 def test_sequence_j_drops_first_and_last_frame():
     gt = np.zeros((4, 2, 2), bool)
     gt[:, 0, 0] = True

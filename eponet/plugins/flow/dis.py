@@ -19,13 +19,20 @@ PRESETS = {
 
 
 class DisFlow:
-    """Forward and backward DIS flow on grey frames."""
+    """Forward and backward DIS flow on grey frames.
 
-    def __init__(self, *, preset: str = "medium"):
+    ``finest_scale`` overrides the preset's finest pyramid level (0: the frame itself; OpenCV's ``medium``
+    stops at 1, half the frame size, and ``fast``/``ultrafast`` at 2), e.g. 0 for sharper object boundaries
+    at about three times the cost."""
+
+    def __init__(self, *, preset: str = "medium", finest_scale: int | None = None):
         self.preset = preset
+        self.finest_scale = finest_scale
 
     def estimate(self, video):
         dis = cv2.DISOpticalFlow_create(PRESETS[self.preset])
+        if self.finest_scale is not None:
+            dis.setFinestScale(self.finest_scale)
         return pairwise_flow(video, lambda a, b: dis.calc(a, b, None), desc="flow (dis)")
 
 
@@ -36,7 +43,11 @@ def eponet_stages():
             kind="flow",
             name="dis",
             factory=DisFlow,
-            params=(Param("preset", "choice", "medium", "OpenCV DIS preset (speed/accuracy)", choices=tuple(PRESETS)),),
+            params=(
+                Param("preset", "choice", "medium", "OpenCV DIS preset (speed/accuracy)", choices=tuple(PRESETS)),
+                Param("finest_scale", "int", None, "finest pyramid level, 0 = full frame size (default: the preset's)",
+                      minimum=0, maximum=6, nullable=True),
+            ),
             doc="OpenCV DIS optical flow (default; ~26 ms per 854x480 pair at preset medium)",
         )
     ]

@@ -21,12 +21,20 @@ def _epe(flow, gt):
 
 
 @pytest.mark.parametrize("stage, bound", [(DisFlow(preset="medium"), 0.30), (DisFlow(preset="ultrafast"), 0.65),
-                                          (FarnebackFlow(), 0.45)])
+                                          (DisFlow(preset="medium", finest_scale=0), 0.15), (FarnebackFlow(), 0.45)])
 def test_middlebury_rubberwhale_endpoint_error(shared_data, stage, bound):
     root = shared_data / "flow-gt" / "middlebury" / "RubberWhale"
     flow = stage.estimate(_pair(root / "frame10.png", root / "frame11.png"))
     assert flow.forward.shape == (1, 388, 584, 2) and flow.forward.dtype == np.float32
     assert _epe(flow.forward[0], read_flo(root / "flow10.flo")) < bound  # zero flow scores 1.26
+
+
+def test_dis_finest_scale_zero_halves_the_rubberwhale_error(shared_data):
+    root = shared_data / "flow-gt" / "middlebury" / "RubberWhale"
+    video, gt = _pair(root / "frame10.png", root / "frame11.png"), read_flo(root / "flow10.flo")
+    coarse = _epe(DisFlow(preset="medium").estimate(video).forward[0], gt)  # OpenCV's medium stops at level 1
+    fine = _epe(DisFlow(preset="medium", finest_scale=0).estimate(video).forward[0], gt)
+    assert fine < 0.6 * coarse
 
 
 @pytest.mark.parametrize("pair", ["0000003", "0000006"])
