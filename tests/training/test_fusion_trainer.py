@@ -122,3 +122,19 @@ def test_clip_crop_and_flip_are_consistent_over_the_clip():
     dropped, chosen = drop_motion_maps(np.ones((2, 500, 3, 3), np.float32), 0.2, np.random.default_rng(1))
     assert chosen.shape == (2, 500) and 0.15 < chosen.mean() < 0.25
     assert (dropped[chosen] == 0).all() and (dropped[~chosen] == 1).all()
+
+
+def test_fusion_weight_average_is_what_validation_and_the_plugin_see(tmp_path):
+    data = easy_fusion_set(count=2)
+    trainer = _trainer(_config(tmp_path, epochs=3, ema=0.8), data)
+    summary = trainer.run()
+    raw, average = trainer.model.state_dict(), trainer.ema.module.state_dict()
+    assert any(not torch.equal(raw[k], average[k]) for k in raw)
+    with open(tmp_path / "train" / "history.csv") as handle:
+        last = list(csv.DictReader(handle))[-1]
+    from eponet.plugins.fusion.convgru import ConvGRUStage
+
+    stage = ConvGRUStage(weights=summary["weights"], sha256=summary["sha256"], window=None, device="cpu")
+    j = np.mean([sequence_j(stage.fuse(s.features.astype(np.float32), s.saliency.astype(np.float32)) >= 0.5,
+                            s.masks.astype(bool)) for s in data])
+    assert abs(j - float(last["val_j"])) < 1e-3  # validation scored the average, and the average was exported
