@@ -1,0 +1,133 @@
+"""EpO on two flows: held-out motion networks on motion images from DIS flow at OpenCV's ``medium`` preset (its
+finest pyramid level is half the frame: the shipped recipe) and at the full frame size (``finest_scale: 0``),
+each alone and with their saliency maps averaged, on eponet's 6-sequence DAVIS validation split.
+
+Each network is trained with ``examples/train-epo.yaml`` minus the validation sequences (the ``fine`` one with
+``geometry.stages.flow.finest_scale: 0``) and run with the ``epo`` pipeline on the same flow it was trained on:
+854x480 frames (the 240p frames upsampled, see ``epo_ablation.validation_root``) at scale 0.5. The masks are
+the saliency thresholded at 0.5 (no CRF) or refined by the ``epo`` preset's dense CRF; J, F and T follow the
+DAVIS-2016 protocol against the 480p ground truth.
+
+    python benchmarks/epo_flow_ensemble.py [--out runs/flow-ensemble] [--jobs 2] [--retrain]
+
+Already trained networks (``<out>/<flow>/weights.pt``) are reused unless ``--retrain``. Prints a table and
+writes ``<out>/ensemble.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from epo_ablation import RECIPE, ROOT, absolutise, train_variant, validation_root  # noqa: E402
+
+#: The flow stage of each network (the rest of the geometry is the recipe's).
+FLOWS = {"medium": {"plugin": "dis", "preset": "medium"},
+         "fine": {"plugin": "dis", "preset": "medium", "finest_scale": 0}}
+
+
+def flow_document(flow: str) -> dict:
+    doc = absolutise(yaml.safe_load(RECIPE.read_text()), RECIPE.parent)
+    doc["geometry"]["stages"]["flow"] = dict(FLOWS[flow])
+    return doc
+
+
+def saliency_maps(weights: Path, flow: str, out: Path, davis: Path, sequences: list[str]) -> None:
+    """Run the ``epo`` pipeline with ``flow`` and these weights, saving the saliency maps under ``out``."""
+    from eponet.core.pipeline import Pipeline
+    from eponet.core.progress import set_quiet
+    from eponet.core.spec import parse_spec
+
+    set_quiet(True)
+    spec = parse_spec({
+        "preset": "epo",
+        "input": {"path": str(davis), "resolution": "480p", "sequences": sequences, "scale": 0.5},
+        "stages": {"flow": FLOWS[flow], "motion_net": {"plugin": "epo_unet", "weights": str(weights)},
+                   "refiner": {"plugin": "threshold"}},
+        "output": {"dir": str(out), "save": ["saliency"]}, "seed": 0,
+    }, base_dir=ROOT)
+    Pipeline(spec).run()
+
+
+def crf_params() -> dict:
+    """The dense CRF parameters of the ``epo`` preset (the rest at the plugin's defaults)."""
+    from eponet.core.registry import get_registry
+
+    params = dict(get_registry().resolve_preset("epo")["refiner"])
+    assert params.pop("plugin") == "densecrf", "the epo preset's refiner is no longer the dense CRF"
+    return params
+
+
+def score_mean(folders: list[Path], davis: Path, sequences: list[str], out: Path, crf: dict | None) -> dict:
+    """Masks from the mean of the saliency maps in ``folders`` (threshold 0.5, or the CRF with ``crf``),
+    written under ``out`` and scored with J, F and T."""
+    import cv2
+
+    from eponet.core.io import read_image
+    from eponet.evaluation.evaluator import evaluate
+    from eponet.plugins.refiner.densecrf import densecrf_mask
+
+    for name in sequences:
+        target = out / name / "masks"
+        target.mkdir(parents=True, exist_ok=True)
+        for path in sorted((folders[0] / name / "saliency").glob("*.png")):
+            maps = [cv2.imread(str(f / name / "saliency" / path.name), cv2.IMREAD_GRAYSCALE) for f in folders]
+            probability = np.mean([m.astype(np.float32) / 255.0 for m in maps], axis=0)
+            if crf is None:
+                mask = probability >= 0.5
+            else:
+                frame = read_image(davis / "JPEGImages" / "480p" / name / path.name)
+                mask = densecrf_mask(frame, probability, **crf) > 0
+            cv2.imwrite(str(target / path.name), mask.astype(np.uint8) * 255)
+    result = evaluate("davis2016", davis, out, sequences, "480p")
+    overall = result["overall"]
+    return {"J": overall["J"]["mean"], "F": overall["F"]["mean"], "T": overall["T"]["mean"],
+            "per_sequence_J": {s: v["J"]["mean"] for s, v in result["sequences"].items()}}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "flow-ensemble")
+    parser.add_argument("--jobs", type=int, default=2, help="networks trained at once (one thread each)")
+    parser.add_argument("--retrain", action="store_true")
+    args = parser.parse_args()
+    threads = 1 if args.jobs > 1 else None
+    with ThreadPoolExecutor(args.jobs) as pool:
+        seconds = dict(zip(FLOWS, pool.map(
+            lambda f: train_variant(args.out / f, lambda: flow_document(f), threads, args.retrain), FLOWS)))
+
+    recipe = yaml.safe_load(RECIPE.read_text())
+    sequences = recipe["validation"]["davis"]["sequences"]
+    davis = validation_root((RECIPE.parent / recipe["validation"]["davis"]["root"]).resolve(), sequences,
+                            ROOT / "runs" / "ablation")
+    for flow in FLOWS:
+        saliency_maps(args.out / flow / "weights.pt", flow, args.out / flow / "saliency", davis, sequences)
+    crf = crf_params()
+    combos = {"medium": ["medium"], "fine": ["fine"], "mean of both": list(FLOWS)}
+    results = {}
+    for label, flows in combos.items():
+        folders = [args.out / f / "saliency" for f in flows]
+        slug = label.replace(" ", "-")
+        results[label] = {refiner: score_mean(folders, davis, sequences, args.out / "masks" / slug / refiner.replace(" ", "-"),
+                                               None if refiner == "no CRF" else crf)
+                          for refiner in ("no CRF", "CRF")}
+    print(f"validation split: {', '.join(sequences)} (240p frames upsampled to 480p, processed at scale 0.5, "
+          "scored against the 480p ground truth; T: lower is better)")
+    print(f"{'flow':<14}" + "".join(f"{m + ' ' + r:>12}" for r in ("no CRF", "CRF") for m in ("J", "F", "T")))
+    for label, row in results.items():
+        print(f"{label:<14}" + "".join(f"{row[r][m]:>12.3f}" for r in ("no CRF", "CRF") for m in ("J", "F", "T")))
+        print(" " * 14 + "CRF J per sequence: " + ", ".join(f"{s} {v:.3f}" for s, v in row["CRF"]["per_sequence_J"].items()))
+    (args.out / "ensemble.json").write_text(json.dumps(
+        {"sequences": sequences, "flows": FLOWS, "crf": crf, "train_seconds": seconds, "results": results}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
