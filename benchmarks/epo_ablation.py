@@ -83,7 +83,7 @@ def train_variant(folder: Path, document, threads: int | None, retrain: bool) ->
     if (folder / "weights.pt").is_file() and not retrain:
         return json.loads((folder / "summary.json").read_text())["train_seconds"]
     doc = document()
-    doc["output"] = {"dir": str(folder)}
+    doc["output"] = {"dir": str(folder.resolve())}  # the spec sits in the folder: a relative path would nest
     doc["threads"] = threads
     folder.mkdir(parents=True, exist_ok=True)
     spec = folder / "train.yaml"
