@@ -120,22 +120,27 @@ def validation_root(davis: Path, sequences: list[str], out: Path) -> Path:
     return root
 
 
-def score(weights: Path, refiner: dict, out: Path, davis: Path, sequences: list[str]) -> dict:
+def run_validation(stages: dict, out: Path, davis: Path, sequences: list[str], *, preset: str = "epo",
+                   save: tuple = ("masks",), evaluate: dict | None = None) -> dict:
+    """Run ``preset`` with ``stages`` on the validation root's 480p frames at scale 0.5 (the setting of every
+    held-out figure), saving ``save`` under ``out``; returns the run's manifest (with ``evaluation`` when
+    ``evaluate`` is given)."""
     from eponet.core.pipeline import Pipeline
     from eponet.core.progress import set_quiet
     from eponet.core.spec import parse_spec
 
     set_quiet(True)
-    spec = parse_spec({
-        "preset": "epo",
-        "input": {"path": str(davis), "resolution": "480p", "sequences": sequences, "scale": 0.5},
-        "stages": {"motion_net": {"plugin": "epo_unet", "weights": str(weights)}, "refiner": refiner},
-        "output": {"dir": str(out), "save": ["masks"]},
-        "evaluate": {"dataset": "davis2016", "t": False},
-        "seed": 0,
-    }, base_dir=ROOT)
-    manifest = Pipeline(spec).run()
-    evaluation = manifest["evaluation"]
+    document = {"preset": preset,
+                "input": {"path": str(davis), "resolution": "480p", "sequences": sequences, "scale": 0.5},
+                "stages": stages, "output": {"dir": str(out), "save": list(save)}, "seed": 0}
+    if evaluate is not None:
+        document["evaluate"] = evaluate
+    return Pipeline(parse_spec(document, base_dir=ROOT)).run()
+
+
+def score(weights: Path, refiner: dict, out: Path, davis: Path, sequences: list[str]) -> dict:
+    stages = {"motion_net": {"plugin": "epo_unet", "weights": str(weights)}, "refiner": refiner}
+    evaluation = run_validation(stages, out, davis, sequences, evaluate={"dataset": "davis2016", "t": False})["evaluation"]
     return {"J": evaluation["overall"]["J"]["mean"], "F": evaluation["overall"]["F"]["mean"],
             "per_sequence_J": {s: v["J"]["mean"] for s, v in evaluation["sequences"].items()}}
 

@@ -29,7 +29,7 @@ import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from epo_ablation import RECIPE, ROOT, absolutise, train_variant, validation_root  # noqa: E402
+from epo_ablation import RECIPE, ROOT, absolutise, run_validation, train_variant, validation_root  # noqa: E402
 
 #: The flow stage of each network (the rest of the geometry is the recipe's).
 FLOWS = {"medium": {"plugin": "dis", "preset": "medium"},
@@ -47,19 +47,9 @@ def flow_document(flow: str, split: list[str] | None = None) -> dict:
 
 def saliency_maps(weights: Path, flow: str, out: Path, davis: Path, sequences: list[str]) -> None:
     """Run the ``epo`` pipeline with ``flow`` and these weights, saving the saliency maps under ``out``."""
-    from eponet.core.pipeline import Pipeline
-    from eponet.core.progress import set_quiet
-    from eponet.core.spec import parse_spec
-
-    set_quiet(True)
-    spec = parse_spec({
-        "preset": "epo",
-        "input": {"path": str(davis), "resolution": "480p", "sequences": sequences, "scale": 0.5},
-        "stages": {"flow": FLOWS[flow], "motion_net": {"plugin": "epo_unet", "weights": str(weights)},
-                   "refiner": {"plugin": "threshold"}},
-        "output": {"dir": str(out), "save": ["saliency"]}, "seed": 0,
-    }, base_dir=ROOT)
-    Pipeline(spec).run()
+    stages = {"flow": FLOWS[flow], "motion_net": {"plugin": "epo_unet", "weights": str(weights)},
+              "refiner": {"plugin": "threshold"}}
+    run_validation(stages, out, davis, sequences, save=("saliency",))
 
 
 def crf_params() -> dict:
@@ -71,31 +61,33 @@ def crf_params() -> dict:
     return params
 
 
-def score_mean(folders: list[Path], davis: Path, sequences: list[str], out: Path, crf: dict | None) -> dict:
-    """Masks from the mean of the saliency maps in ``folders`` (threshold 0.5, or the CRF with ``crf``),
-    written under ``out`` and scored with J, F and T."""
+def score_mean(folders: list[Path], davis: Path, sequences: list[str], out: Path, crf: dict) -> dict:
+    """Masks from the mean of the saliency maps in ``folders``, thresholded at 0.5 (``no CRF``) and refined by
+    the CRF with ``crf`` (``CRF``), written under ``out/<refiner>`` in one pass; J, F and T of each."""
     import cv2
 
     from eponet.core.io import read_image
     from eponet.evaluation.evaluator import evaluate
     from eponet.plugins.refiner.densecrf import densecrf_mask
 
+    targets = {"no CRF": out / "no-CRF", "CRF": out / "CRF"}
     for name in sequences:
-        target = out / name / "masks"
-        target.mkdir(parents=True, exist_ok=True)
+        for target in targets.values():
+            (target / name / "masks").mkdir(parents=True, exist_ok=True)
         for path in sorted((folders[0] / name / "saliency").glob("*.png")):
             maps = [cv2.imread(str(f / name / "saliency" / path.name), cv2.IMREAD_GRAYSCALE) for f in folders]
             probability = np.mean([m.astype(np.float32) / 255.0 for m in maps], axis=0)
-            if crf is None:
-                mask = probability >= 0.5
-            else:
-                frame = read_image(davis / "JPEGImages" / "480p" / name / path.name)
-                mask = densecrf_mask(frame, probability, **crf) > 0
-            cv2.imwrite(str(target / path.name), mask.astype(np.uint8) * 255)
-    result = evaluate("davis2016", davis, out, sequences, "480p")
-    overall = result["overall"]
-    return {"J": overall["J"]["mean"], "F": overall["F"]["mean"], "T": overall["T"]["mean"],
-            "per_sequence_J": {s: v["J"]["mean"] for s, v in result["sequences"].items()}}
+            frame = read_image(davis / "JPEGImages" / "480p" / name / path.name)
+            masks = {"no CRF": probability >= 0.5, "CRF": densecrf_mask(frame, probability, **crf) > 0}
+            for refiner, mask in masks.items():
+                cv2.imwrite(str(targets[refiner] / name / "masks" / path.name), mask.astype(np.uint8) * 255)
+    results = {}
+    for refiner, target in targets.items():
+        result = evaluate("davis2016", davis, target, sequences, "480p")
+        overall = result["overall"]
+        results[refiner] = {"J": overall["J"]["mean"], "F": overall["F"]["mean"], "T": overall["T"]["mean"],
+                            "per_sequence_J": {s: v["J"]["mean"] for s, v in result["sequences"].items()}}
+    return results
 
 
 def main() -> int:
@@ -122,10 +114,7 @@ def main() -> int:
     results = {}
     for label, flows in combos.items():
         folders = [args.out / f / "saliency" for f in flows]
-        slug = label.replace(" ", "-")
-        results[label] = {refiner: score_mean(folders, davis, sequences, args.out / "masks" / slug / refiner.replace(" ", "-"),
-                                               None if refiner == "no CRF" else crf)
-                          for refiner in ("no CRF", "CRF")}
+        results[label] = score_mean(folders, davis, sequences, args.out / "masks" / label.replace(" ", "-"), crf)
     print(f"validation split: {', '.join(sequences)} (240p frames upsampled to 480p, processed at scale 0.5, "
           "scored against the 480p ground truth; T: lower is better)")
     print(f"{'flow':<14}" + "".join(f"{m + ' ' + r:>12}" for r in ("no CRF", "CRF") for m in ("J", "F", "T")))

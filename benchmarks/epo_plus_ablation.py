@@ -28,7 +28,7 @@ from pathlib import Path
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from epo_ablation import ROOT, train_variant, validation_root  # noqa: E402
+from epo_ablation import ROOT, run_validation, train_variant, validation_root  # noqa: E402
 
 RECIPE = ROOT / "examples" / "train-epo-plus.yaml"
 VARIANTS = ("dropout", "no-dropout", "paper")
@@ -55,18 +55,8 @@ def train(name: str, motion_net: Path, out: Path, threads: int | None, retrain: 
 
 
 def score(preset: str, stages: dict, out: Path, davis: Path, sequences: list[str]) -> dict:
-    from eponet.core.pipeline import Pipeline
-    from eponet.core.progress import set_quiet
-    from eponet.core.spec import parse_spec
-
-    set_quiet(True)
-    spec = parse_spec({
-        "preset": preset,
-        "input": {"path": str(davis), "resolution": "480p", "sequences": sequences, "scale": 0.5},
-        "stages": stages, "output": {"dir": str(out), "save": ["masks", "saliency"]},
-        "evaluate": {"dataset": "davis2016", "t": True}, "seed": 0,
-    }, base_dir=ROOT)
-    evaluation = Pipeline(spec).run()["evaluation"]
+    evaluation = run_validation(stages, out, davis, sequences, preset=preset, save=("masks", "saliency"),
+                                evaluate={"dataset": "davis2016", "t": True})["evaluation"]
     overall = evaluation["overall"]
     return {"J": overall["J"]["mean"], "F": overall["F"]["mean"], "T": overall.get("T", {}).get("mean"),
             "per_sequence_J": {s: v["J"]["mean"] for s, v in evaluation["sequences"].items()}}

@@ -23,6 +23,9 @@ TOP_LEVEL = ("task", "seed", "model", "geometry", "phases", "validation", "optim
              "augment", "output", "cache", "device", "threads")
 FUSION_TOP_LEVEL = TOP_LEVEL + ("motion_net", "appearance", "clips")
 
+#: Shared by both tasks' optimiser sections.
+_EMA = Param("ema", "float", 0.0, "decay of an exponential moving average of the weights, updated every step, that "
+             "is validated and exported instead of the raw weights (0: off; e.g. 0.995)", minimum=0.0, maximum=0.9999)
 _MODEL = (
     Param("inputs", "choice", "ed+flow", "input modality", choices=("ed+flow", "flow", "ed")),
     Param("depth", "int", 4, "number of encoder (and decoder) blocks", minimum=2, maximum=4),
@@ -37,8 +40,7 @@ _OPTIMIZER = (
     Param("batch_size", "int", 12, "frames per batch", minimum=1),
     Param("step_epochs", "int", 5, "multiply the learning rate by gamma every this many epochs of a phase", minimum=1),
     Param("gamma", "float", 0.1, "learning-rate decay factor", minimum=0.0, maximum=1.0, exclusive_min=True),
-    Param("ema", "float", 0.0, "decay of an exponential moving average of the weights, updated every step, that "
-          "is validated and exported instead of the raw weights (0: off; e.g. 0.998)", minimum=0.0, maximum=0.9999),
+    _EMA,
 )
 _DROPOUT = (
     Param("probability", "float", 0.2, "fraction of training samples whose ED channel is replaced", minimum=0.0, maximum=1.0),
@@ -101,8 +103,7 @@ _FUSION_OPTIMIZER = (
     Param("batch_size", "int", 1, "clips per optimisation step", minimum=1),
     Param("clip_gradients", "float", 50.0, "clip every gradient element to [-value, value] (the paper: 50); null: "
           "no clipping", minimum=0.0, exclusive_min=True, nullable=True),
-    Param("ema", "float", 0.0, "decay of an exponential moving average of the weights, updated every step, that "
-          "is validated and exported instead of the raw weights (0: off)", minimum=0.0, maximum=0.9999),
+    _EMA,
 )
 _CLIPS = (
     Param("length", "int", 12, "frames per training clip, back-propagated through time (the paper: 12)", minimum=2),
