@@ -1,12 +1,13 @@
 """EpO on two flows: held-out motion networks on motion images from DIS flow at OpenCV's ``medium`` preset (its
-finest pyramid level is half the frame: the shipped recipe) and at the full frame size (``finest_scale: 0``),
-each alone and with their saliency maps averaged, on eponet's 6-sequence DAVIS validation split.
+finest pyramid level is half the frame: the recipe of the v2 weights) and at the full frame size
+(``finest_scale: 0``: the recipe and the presets since v3), each alone and with their saliency maps averaged,
+on eponet's 6-sequence DAVIS validation split.
 
-Each network is trained with ``examples/train-epo.yaml`` minus the validation sequences (the ``fine`` one with
-``geometry.stages.flow.finest_scale: 0``) and run with the ``epo`` pipeline on the same flow it was trained on:
-854x480 frames (the 240p frames upsampled, see ``epo_ablation.validation_root``) at scale 0.5. The masks are
-the saliency thresholded at 0.5 (no CRF) or refined by the ``epo`` preset's dense CRF; J, F and T follow the
-DAVIS-2016 protocol against the 480p ground truth.
+Each network is trained with ``examples/train-epo.yaml`` minus the validation sequences, with its flow stage
+set as in ``FLOWS``, and run with the ``epo`` pipeline on the same flow it was trained on: 854x480 frames (the
+240p frames upsampled, see ``epo_ablation.validation_root``) at scale 0.5. The masks are the saliency
+thresholded at 0.5 (no CRF) or refined by the ``epo`` preset's dense CRF; J, F and T follow the DAVIS-2016
+protocol against the 480p ground truth.
 
     python benchmarks/epo_flow_ensemble.py [--out runs/flow-ensemble] [--jobs 2] [--retrain] [--split a,b,...]
 
@@ -32,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from epo_ablation import RECIPE, ROOT, absolutise, run_validation, train_variant, validation_root  # noqa: E402
 
 #: The flow stage of each network (the rest of the geometry is the recipe's).
-FLOWS = {"medium": {"plugin": "dis", "preset": "medium"},
+FLOWS = {"medium": {"plugin": "dis", "preset": "medium", "finest_scale": None},
          "fine": {"plugin": "dis", "preset": "medium", "finest_scale": 0}}
 
 

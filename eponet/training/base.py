@@ -215,6 +215,18 @@ def data_line(source: DataSource) -> str:
     return f"DAVIS-layout root `{Path(str(o.get('root'))).name}` {o.get('resolution', '')}: {chosen}{excluded}"
 
 
+def trained_line(config: TrainConfig, summary: dict) -> str:
+    """The model card's "trained with" line: spec, seed, epochs, wall time, machine, threads and device."""
+    import platform
+
+    import torch
+
+    threads = torch.get_num_threads()
+    return (f"- trained with `eponet train {Path(config.file).name if config.file else '<spec>'}`, seed {config.seed}, "
+            f"{summary['epochs']} epochs in {summary['train_seconds'] / 60:.1f} min on {platform.machine()} "
+            f"({threads} thread{'s' if threads != 1 else ''}, device {config.device})")
+
+
 def history_table(history: list[dict]) -> list[str]:
     """The per-epoch figures as Markdown table lines (with the section heading)."""
     lines = ["", "## Training history", "", "| epoch | phase | lr | train loss | val loss | val J | s |",

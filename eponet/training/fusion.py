@@ -18,7 +18,7 @@ from eponet.core.inputs import discover_sequences
 from eponet.core.progress import track
 from eponet.core.types import Video
 from eponet.training.augment import drop_motion_maps, random_clip_crop_flip
-from eponet.training.base import Trainer, data_line, history_table, sequence_j
+from eponet.training.base import Trainer, data_line, history_table, sequence_j, trained_line
 from eponet.training.config import DataSource, TrainConfig
 from eponet.training.data import load_motion_sequences
 from eponet.training.losses import segmentation_loss
@@ -199,10 +199,6 @@ class FusionTrainer(Trainer):
 
 def fusion_model_card(config: TrainConfig, summary: dict, history: list[dict], model: dict) -> str:
     """A Markdown model card of a fusion training run."""
-    import platform
-
-    import torch
-
     o, d, a = config.optimizer, config.input_dropout, config.augment
     schedule = {"linear": f"lr {o['lr']} x (1 - epoch / epochs)",
                 "step": f"lr {o['lr']} x {o['gamma']} every {o['step_epochs']} epochs of a phase",
@@ -223,9 +219,7 @@ def fusion_model_card(config: TrainConfig, summary: dict, history: list[dict], m
         + " (the paper: DeepLab fc6, 1024 channels at stride 8)",
         "- motion net: " + (f"{stages['motion_net'].plugin} {stages['motion_net'].params}" if "motion_net" in stages
                             else "not recorded"),
-        f"- trained with `eponet train {Path(config.file).name if config.file else '<spec>'}`, seed {config.seed}, "
-        f"{summary['epochs']} epochs in {summary['train_seconds'] / 60:.1f} min on {platform.machine()} "
-        f"({torch.get_num_threads()} threads, device {config.device})",
+        trained_line(config, summary),
         f"- optimiser: {o['name']}, {schedule}, momentum {o['momentum']}, weight decay {o['weight_decay']}, "
         f"{o['batch_size']} clip(s) of {config.clips.get('length')} frames per step (BPTT, {config.loss['name']} loss), gradients clipped to "
         f"{'[-%g, %g]' % (o['clip_gradients'], o['clip_gradients']) if o['clip_gradients'] else 'no limit'}",

@@ -12,7 +12,8 @@ from eponet.core.errors import InputError
 from eponet.core.io import atomic_write_bytes
 from eponet.core.progress import track
 from eponet.training.augment import InputDropout, random_crop_flip, shift_flow
-from eponet.training.base import HISTORY_FIELDS, Trainer, data_line, history_table, plot_history, sequence_j
+from eponet.training.base import (HISTORY_FIELDS, Trainer, data_line, history_table, plot_history, sequence_j,
+                                  trained_line)
 from eponet.training.config import DataSource, TrainConfig
 from eponet.training.data import SequenceData, load_motion_sequences
 from eponet.training.losses import segmentation_loss
@@ -141,19 +142,13 @@ class MotionNetTrainer(Trainer):
 
 def model_card(config: TrainConfig, summary: dict, history: list[dict]) -> str:
     """A Markdown model card: architecture, data, recipe, per-epoch figures, training time and checksum."""
-    import platform
-
-    import torch
-
     m, o, d, a = config.model, config.optimizer, config.input_dropout, config.augment
     lines = [
         "# Model card: EpO motion network", "",
         f"- weights: `{Path(summary['weights']).name}`, sha256 `{summary['sha256']}`",
         f"- architecture: EpO U-Net, inputs {m['inputs']}, depth {m['depth']}, widths {list(m['widths'])[:m['depth']]}, "
         f"{m['head_channels']} channels before the 1x1 classifier",
-        f"- trained with `eponet train {Path(config.file).name if config.file else '<spec>'}`, seed {config.seed}, "
-        f"{summary['epochs']} epochs in {summary['train_seconds'] / 60:.1f} min on {platform.machine()} "
-        f"({torch.get_num_threads()} threads, device {config.device})",
+        trained_line(config, summary),
         f"- optimiser: {o['name']}, lr {o['lr']} x {o['gamma']} every {o['step_epochs']} epochs of a phase, "
         f"momentum {o['momentum']}, weight decay {o['weight_decay']}, batch {o['batch_size']}",
         f"- loss: {config.loss['name']}" + (f" (soft Jaccard weight {config.loss['iou_weight']})"
