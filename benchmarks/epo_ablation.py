@@ -138,11 +138,21 @@ def run_validation(stages: dict, out: Path, davis: Path, sequences: list[str], *
     return Pipeline(parse_spec(document, base_dir=ROOT)).run()
 
 
+def summarise(evaluation: dict) -> dict:
+    """The figures every held-out benchmark reports from an evaluation: J, F and T means (T only when it was
+    computed) and J per sequence."""
+    overall = evaluation["overall"]
+    figures = {"J": overall["J"]["mean"], "F": overall["F"]["mean"]}
+    if "T" in overall:
+        figures["T"] = overall["T"]["mean"]
+    figures["per_sequence_J"] = {s: v["J"]["mean"] for s, v in evaluation["sequences"].items()}
+    return figures
+
+
 def score(weights: Path, refiner: dict, out: Path, davis: Path, sequences: list[str]) -> dict:
     stages = {"motion_net": {"plugin": "epo_unet", "weights": str(weights)}, "refiner": refiner}
-    evaluation = run_validation(stages, out, davis, sequences, evaluate={"dataset": "davis2016", "t": False})["evaluation"]
-    return {"J": evaluation["overall"]["J"]["mean"], "F": evaluation["overall"]["F"]["mean"],
-            "per_sequence_J": {s: v["J"]["mean"] for s, v in evaluation["sequences"].items()}}
+    return summarise(run_validation(stages, out, davis, sequences,
+                                    evaluate={"dataset": "davis2016", "t": False})["evaluation"])
 
 
 def main() -> int:

@@ -30,7 +30,8 @@ import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from epo_ablation import RECIPE, ROOT, absolutise, run_validation, train_variant, validation_root  # noqa: E402
+from epo_ablation import (RECIPE, ROOT, absolutise, run_validation, summarise, train_variant,  # noqa: E402
+                          validation_root)
 
 #: The flow stage of each network (the rest of the geometry is the recipe's).
 FLOWS = {"medium": {"plugin": "dis", "preset": "medium", "finest_scale": None},
@@ -84,10 +85,7 @@ def score_mean(folders: list[Path], davis: Path, sequences: list[str], out: Path
                 cv2.imwrite(str(targets[refiner] / name / "masks" / path.name), mask.astype(np.uint8) * 255)
     results = {}
     for refiner, target in targets.items():
-        result = evaluate("davis2016", davis, target, sequences, "480p")
-        overall = result["overall"]
-        results[refiner] = {"J": overall["J"]["mean"], "F": overall["F"]["mean"], "T": overall["T"]["mean"],
-                            "per_sequence_J": {s: v["J"]["mean"] for s, v in result["sequences"].items()}}
+        results[refiner] = summarise(evaluate("davis2016", davis, target, sequences, "480p"))
     return results
 
 

@@ -28,7 +28,7 @@ from pathlib import Path
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from epo_ablation import ROOT, run_validation, train_variant, validation_root  # noqa: E402
+from epo_ablation import ROOT, run_validation, summarise, train_variant, validation_root  # noqa: E402
 
 RECIPE = ROOT / "examples" / "train-epo-plus.yaml"
 VARIANTS = ("dropout", "no-dropout", "paper")
@@ -55,11 +55,8 @@ def train(name: str, motion_net: Path, out: Path, threads: int | None, retrain: 
 
 
 def score(preset: str, stages: dict, out: Path, davis: Path, sequences: list[str]) -> dict:
-    evaluation = run_validation(stages, out, davis, sequences, preset=preset, save=("masks", "saliency"),
-                                evaluate={"dataset": "davis2016", "t": True})["evaluation"]
-    overall = evaluation["overall"]
-    return {"J": overall["J"]["mean"], "F": overall["F"]["mean"], "T": overall.get("T", {}).get("mean"),
-            "per_sequence_J": {s: v["J"]["mean"] for s, v in evaluation["sequences"].items()}}
+    return summarise(run_validation(stages, out, davis, sequences, preset=preset, save=("masks", "saliency"),
+                                    evaluate={"dataset": "davis2016", "t": True})["evaluation"])
 
 
 def main() -> int:
@@ -86,7 +83,7 @@ def main() -> int:
     davis = (RECIPE.parent / base["validation"]["davis"]["root"]).resolve()
     sequences = base["validation"]["davis"]["sequences"]
     davis = validation_root(davis, sequences, args.out)
-    refiners = {"no CRF": {"plugin": "threshold"}, "CRF": {"plugin": "densecrf", "max_size": 427}}
+    refiners = {"no CRF": {"plugin": "threshold"}, "CRF": {"plugin": "densecrf"}}  # the presets' CRF parameters
     rows = {"EpO": ("epo", {"motion_net": {"plugin": "epo_unet", "weights": str(motion_net)}}, None)}
     for name in names:
         rows[f"EpO+ {name}"] = ("epo+", {"motion_net": {"plugin": "epo_unet", "weights": str(motion_net)},
