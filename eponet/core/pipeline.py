@@ -107,7 +107,8 @@ class Pipeline:
             timer.triplets = rigidity.triplets
             from eponet.geometry import normalise_ed
 
-            result.motion_images = motion_images(result.flow, normalise_ed(rigidity.ed))
+            # unsaturated: the motion net saturates the ED channel as its weights were trained (ed_encoding)
+            result.motion_images = motion_images(result.flow, normalise_ed(rigidity.ed, saturate=False))
         if "motion_net" in stages:
             saliency = self._timed("motion_net", timer, video, lambda: stages["motion_net"].predict(result.motion_images))
             probability = saliency

@@ -55,7 +55,8 @@ class RigidityModel(Protocol):
 class MotionNet(Protocol):
     def predict(self, motion_images: np.ndarray) -> np.ndarray:
         """Foreground probability float32 ``(F, H, W)`` in [0, 1] from motion images float32 ``(F, 3, H, W)``
-        holding normalised (dx, dy, ED)."""
+        holding normalised (dx, dy, ED): flow / ``FLOW_SCALE`` and ED scaled per video, its 95th percentile
+        at 250/255 and not clipped above (``eponet.geometry.normalise_ed(..., saturate=False)``)."""
 
 
 @runtime_checkable

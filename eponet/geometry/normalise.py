@@ -77,6 +77,7 @@ def normalise_ed(
     percentile: float = ED_PERCENTILE,
     target: float = ED_TARGET,
     floor: float = ED_FLOOR_PX,
+    saturate: bool = True,
 ) -> np.ndarray:
     """Per-video ED scaling consumed by the motion net.
 
@@ -84,7 +85,11 @@ def normalise_ed(
     frame of the video. With the defaults the 95th percentile maps to 250/255 and values above about
     1.02 x P95 saturate at 1, as in the original (which did the same per video, over trajectories, in uint8).
     The floor (1 px) keeps a static or perfectly rigid video, whose ED is only flow noise, near 0 instead of
-    stretching its noise to the full range. NaN/inf become 0 and 1 respectively.
+    stretching its noise to the full range. NaN/inf become 0 and ``2 * target``.
+
+    With ``saturate=False`` nothing is clipped above: the strongest 5% keep their values above 1 (the ED of a
+    small, fast object can be tens of times the percentile). This is what the pipeline gives the motion net,
+    whose :attr:`~eponet.nets.EpoUNet` ``ed_encoding`` then saturates the channel its own way.
 
     Parameters
     ----------
@@ -93,9 +98,9 @@ def normalise_ed(
 
     Returns
     -------
-    array (F, H, W) float32 in [0, 1]
+    array (F, H, W) float32 in [0, 1] (``saturate``) or [0, inf)
     """
     ed_maps = np.asarray(ed_maps, dtype=np.float32)
     s = ed_scale(ed_maps, percentile=percentile, floor=floor)
     out = np.nan_to_num(ed_maps, nan=0.0, posinf=np.float32(2 * s / target), neginf=0.0) * np.float32(target / s)
-    return np.clip(out, 0.0, 1.0, out=out).astype(np.float32, copy=False)
+    return np.clip(out, 0.0, 1.0 if saturate else None, out=out).astype(np.float32, copy=False)

@@ -6,10 +6,19 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["EpoUNet", "INPUT_CHANNELS"]
+from eponet.core.motion import ED_ENCODINGS
+
+__all__ = ["EpoUNet", "INPUT_CHANNELS", "ED_ENCODINGS", "encode_ed"]
 
 #: Which channels of a (dx, dy, ED) motion image each input modality uses.
 INPUT_CHANNELS = {"ed+flow": (0, 1, 2), "flow": (0, 1), "ed": (2,)}
+
+
+def encode_ed(ed: torch.Tensor, encoding: str) -> torch.Tensor:
+    """Saturate scaled ED values (>= 0) as ``encoding`` says (see :data:`ED_ENCODINGS`); same shape."""
+    if encoding == "clip":
+        return ed.clamp(max=1.0)
+    return torch.where(ed > 1.0, 1.0 + torch.log(ed.clamp(min=1.0)), ed)
 
 
 def _conv_bn_relu(cin: int, cout: int, kernel: int = 3) -> nn.Sequential:
@@ -27,19 +36,24 @@ class EpoUNet(nn.Module):
 
     Input: float ``(B, C, H, W)`` with C = ``len(INPUT_CHANNELS[inputs])``; any H, W (not only multiples of
     2**depth: the decoder resizes to each skip's size). Output: logits ``(B, 1, H, W)``; apply a sigmoid for
-    the foreground probability.
+    the foreground probability. :meth:`select_inputs` turns the pipeline's motion images into that input,
+    saturating the ED channel as ``ed_encoding`` says (``clip``, the paper's, or ``log``).
     """
 
     def __init__(self, *, inputs: str = "ed+flow", depth: int = 4, widths: tuple[int, ...] = (16, 32, 64, 128),
-                 head_channels: int = 128):
+                 head_channels: int = 128, ed_encoding: str = "clip"):
         super().__init__()
         if inputs not in INPUT_CHANNELS:
             raise ValueError(f"inputs: expected one of {', '.join(INPUT_CHANNELS)}, got {inputs!r}")
+        if ed_encoding not in ED_ENCODINGS:
+            raise ValueError(f"ed_encoding: expected one of {', '.join(ED_ENCODINGS)}, got {ed_encoding!r}")
         if len(widths) < depth:
             raise ValueError(f"widths: need at least {depth} values for depth {depth}, got {list(widths)}")
         widths = tuple(int(w) for w in widths[:depth])
-        self.config = {"inputs": inputs, "depth": depth, "widths": list(widths), "head_channels": head_channels}
+        self.config = {"inputs": inputs, "depth": depth, "widths": list(widths), "head_channels": head_channels,
+                       "ed_encoding": ed_encoding}
         self.channels = INPUT_CHANNELS[inputs]
+        self.ed_encoding = ed_encoding
         cin = len(self.channels)
         self.encoder = nn.ModuleList()
         for width in widths:
@@ -76,5 +90,10 @@ class EpoUNet(nn.Module):
         return self.classifier(self.head(x))
 
     def select_inputs(self, motion_images: torch.Tensor) -> torch.Tensor:
-        """The channels of full (dx, dy, ED) motion images ``(B, 3, H, W)`` that this network reads."""
-        return motion_images[:, list(self.channels)]
+        """The channels of full (dx, dy, ED) motion images ``(B, 3, H, W)`` that this network reads, the ED
+        channel (scaled per video, unsaturated) saturated by ``ed_encoding``. A new tensor."""
+        x = motion_images[:, list(self.channels)]
+        if 2 in self.channels:
+            ed = self.channels.index(2)
+            x[:, ed] = encode_ed(x[:, ed], self.ed_encoding)
+        return x

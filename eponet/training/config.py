@@ -10,6 +10,7 @@ from typing import Any
 import yaml
 
 from eponet.core.errors import SpecError
+from eponet.core.motion import ED_ENCODINGS
 from eponet.core.params import Param, validate_params
 from eponet.core.spec import apply_overrides, default_cache_dir, parse_spec
 from eponet.core.registry import nearest
@@ -31,6 +32,8 @@ _MODEL = (
     Param("depth", "int", 4, "number of encoder (and decoder) blocks", minimum=2, maximum=4),
     Param("widths", "list", [16, 32, 64, 128], "channels of the encoder blocks, shallow to deep"),
     Param("head_channels", "int", 128, "channels before the 1x1 classifier (128 in the paper)", minimum=1),
+    Param("ed_encoding", "choice", "clip", "how the network saturates the per-video scaled ED channel: clip at "
+          "1 (the paper) or log (1 + ln ED above 1)", choices=ED_ENCODINGS),
 )
 _OPTIMIZER = (
     Param("name", "choice", "sgd", "optimiser", choices=("sgd", "adam", "adamw", "rmsprop")),

@@ -70,3 +70,25 @@ def test_nothing_half_written_on_a_corrupt_frame(tmp_path):
     assert (out / "a" / "flow").is_dir()  # the complete sequence is there
     assert not (out / "b").exists() and not (out / "run.json").exists()
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no partial folders left
+
+
+def test_motion_images_carry_unsaturated_ed_for_the_network_to_encode(tmp_path):
+    """The pipeline hands the motion net ED scaled per video but not clipped: a small object moving on its own
+    (here a 6x6 patch, about 2% of the frame) keeps its ED well above the background's 95th percentile."""
+    from eponet.core.inputs import discover_sequences, load_video
+    from eponet.geometry import normalise_ed
+
+    frames = textured_frames(6, (48, 64), shift=(1.0, 0.5), seed=0)
+    patch = np.random.default_rng(5).integers(0, 256, (6, 6, 3), dtype=np.uint8)
+    for t, frame in enumerate(frames):
+        frame[20 : 26, 10 + 4 * t : 16 + 4 * t] = patch  # moves 4 px per frame against the background's 1
+    write_frames(tmp_path / "clip", frames)
+    spec = parse_spec({"preset": "geometry", "input": {"path": str(tmp_path / "clip"), "scale": 1.0},
+                       "stages": {"rigidity": {"plugin": "homography"}},
+                       "output": {"dir": str(tmp_path / "out"), "save": []}, "cache": {"enabled": False}})
+    video = load_video(discover_sequences(spec.input.path)[0], scale=1.0)
+    result = Pipeline(spec).process(video)
+    ed = result.motion_images[:, 2]
+    np.testing.assert_allclose(ed, normalise_ed(result.ed, saturate=False), rtol=1e-6)
+    # the patch in frame 2 stays well above 1, where the paper's encoding would clip it to the background's top
+    assert ed[2, 21:25, 21:25].min() > 1.5 and np.median(ed) < 0.5

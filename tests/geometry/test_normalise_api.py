@@ -35,6 +35,17 @@ def test_normalise_ed_maps_percentile_and_saturates():
     np.testing.assert_allclose(normalise_ed(ed * 3), out, atol=1e-6)
 
 
+def test_unsaturated_normalisation_keeps_the_range_above_the_percentile():
+    rng = np.random.default_rng(1)
+    ed = rng.uniform(0, 10, (4, 30, 40)).astype(np.float32)
+    ed[0, :3, :3] = 400.0  # a small, fast object: 40 times the background's largest
+    out = normalise_ed(ed, saturate=False)
+    s = np.percentile(ed, 95)
+    np.testing.assert_allclose(out, ed * ED_TARGET / s, rtol=1e-5)
+    assert out[0, 0, 0] > 35 and out.min() >= 0
+    np.testing.assert_array_equal(np.minimum(out, 1.0), normalise_ed(ed))  # clipping it gives the paper's
+
+
 def test_normalise_ed_floor_and_non_finite():
     quiet = np.full((2, 5, 5), 0.2, np.float32)  # a rigid video: ED is flow noise only
     assert ed_scale(quiet) == 1.0

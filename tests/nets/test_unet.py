@@ -15,9 +15,26 @@ def test_output_shape_at_odd_sizes(inputs, channels, depth):
 
 
 def test_select_inputs_picks_the_modality_channels():
-    images = torch.arange(3.0).view(1, 3, 1, 1).expand(1, 3, 4, 4)
-    assert EpoUNet(inputs="ed").select_inputs(images)[0, :, 0, 0].tolist() == [2.0]
-    assert EpoUNet(inputs="flow").select_inputs(images)[0, :, 0, 0].tolist() == [0.0, 1.0]
+    images = torch.tensor([3.0, -2.0, 0.5]).view(1, 3, 1, 1).expand(1, 3, 4, 4)
+    assert EpoUNet(inputs="ed").select_inputs(images)[0, :, 0, 0].tolist() == [0.5]
+    assert EpoUNet(inputs="flow").select_inputs(images)[0, :, 0, 0].tolist() == [3.0, -2.0]
+    assert EpoUNet(inputs="ed+flow").select_inputs(images)[0, :, 0, 0].tolist() == [3.0, -2.0, 0.5]
+
+
+@pytest.mark.parametrize("inputs", ["ed+flow", "ed"])
+def test_ed_encoding_saturates_only_the_ed_channel(inputs):
+    ed = torch.tensor([0.0, 0.25, 1.0, 2.0, 20.0])
+    images = torch.stack([torch.full((5,), 7.0), torch.full((5,), -3.0), ed]).view(1, 3, 1, 5)
+    before = images.clone()
+    clip = EpoUNet(inputs=inputs).select_inputs(images)
+    log = EpoUNet(inputs=inputs, ed_encoding="log").select_inputs(images)
+    assert torch.equal(images, before)  # the caller's motion images are not touched
+    # the paper's encoding clips at 1; log is the identity up to 1 and 1 + ln(ED) above (1 + ln 20 = 3.996)
+    assert clip[0, -1, 0].tolist() == [0.0, 0.25, 1.0, 1.0, 1.0]
+    assert log[0, -1, 0].tolist() == pytest.approx([0.0, 0.25, 1.0, 1.6931472, 3.9957323])
+    if inputs == "ed+flow":  # flow passes through unchanged
+        assert log[0, :2].tolist() == clip[0, :2].tolist() == [[[7.0] * 5], [[-3.0] * 5]]
+    assert EpoUNet(ed_encoding="log").config["ed_encoding"] == "log"
 
 
 def test_head_has_the_papers_128_channels():
@@ -31,3 +48,5 @@ def test_bad_configuration_is_a_clear_error():
         EpoUNet(inputs="rgb")
     with pytest.raises(ValueError, match="widths: need at least 4 values"):
         EpoUNet(widths=(8, 16))
+    with pytest.raises(ValueError, match="ed_encoding: expected one of clip, log"):
+        EpoUNet(ed_encoding="sqrt")

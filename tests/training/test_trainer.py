@@ -55,13 +55,27 @@ def test_short_training_lowers_the_loss_and_segments_the_easy_set(tmp_path):
     assert float(rows[-1]["val_j"]) > 0.8
     assert (tmp_path / "train" / "curves.png").stat().st_size > 1000
     card = (tmp_path / "train" / "model-card.md").read_text()
-    assert summary["sha256"] in card and f"| 10 | easy |" in card
+    assert summary["sha256"] in card and f"| 10 | easy |" in card and "ED encoding clip" in card
     # the exported weights load through the plugin, checksum verified, and reproduce the validation score
     from eponet.plugins.motion_net.epo_unet import EpoUNetStage
 
     stage = EpoUNetStage(weights=summary["weights"], sha256=summary["sha256"], batch_size=4, device="cpu")
     j = np.mean([sequence_j(stage.predict(s.motion.astype(np.float32)) >= 0.5, s.masks.astype(bool)) for s in data])
     assert abs(j - float(rows[-1]["val_j"])) < 1e-3
+
+
+def test_the_ed_encoding_is_trained_exported_and_loaded(tmp_path):
+    data = easy_sequences(count=2, frames=6)
+    for s in data:
+        s.motion[:, 2] *= 30  # unsaturated ED: the clip would make the foreground and the noise's top alike
+    config = _config(tmp_path, epochs=1)
+    config.model["ed_encoding"] = "log"
+    summary = _trainer(config, data).run()
+    assert torch.load(summary["weights"], weights_only=True)["config"]["ed_encoding"] == "log"
+    assert "ED encoding log" in (tmp_path / "train" / "model-card.md").read_text()
+    from eponet.plugins.motion_net.epo_unet import EpoUNetStage
+
+    assert EpoUNetStage(weights=summary["weights"], device="cpu").model.ed_encoding == "log"
 
 
 def test_resume_continues_exactly(tmp_path):

@@ -61,6 +61,7 @@ def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
     from tests.conftest import assert_shipped_weights
 
     assert_shipped_weights("epo-davis", "motion_net")
+    assert_shipped_weights("epo-davis-v3", "motion_net")
     EpoUNetStage()  # the default loads the built-in weights
 
 
