@@ -8,14 +8,14 @@ from torch import nn
 
 from eponet.core.motion import ED_ENCODINGS
 
-__all__ = ["EpoUNet", "INPUT_CHANNELS", "ED_ENCODINGS", "encode_ed"]
+__all__ = ["EpoUNet", "INPUT_CHANNELS", "encode_ed"]
 
 #: Which channels of a (dx, dy, ED) motion image each input modality uses.
 INPUT_CHANNELS = {"ed+flow": (0, 1, 2), "flow": (0, 1), "ed": (2,)}
 
 
 def encode_ed(ed: torch.Tensor, encoding: str) -> torch.Tensor:
-    """Saturate scaled ED values (>= 0) as ``encoding`` says (see :data:`ED_ENCODINGS`); same shape."""
+    """Saturate scaled ED values (>= 0) as ``encoding`` says (``eponet.core.motion.ED_ENCODINGS``); same shape."""
     if encoding == "clip":
         return ed.clamp(max=1.0)
     return torch.where(ed > 1.0, 1.0 + torch.log(ed.clamp(min=1.0)), ed)
