@@ -31,10 +31,13 @@ class Param:
     exclusive_min: bool = False
     #: A required parameter has no default: a spec must give it.
     required: bool = False
+    many: bool = False
 
     def __post_init__(self) -> None:
         if self.type not in _TYPES:
             raise ValueError(f"parameter {self.name}: unknown type {self.type!r}; use one of {', '.join(_TYPES)}")
+        if self.many and self.type not in ("str", "path", "weights"):
+            raise ValueError(f"parameter {self.name}: many is for str, path and weights parameters, not {self.type}")
         if not self.required and (self.default is not None or not self.nullable):
             problem = self.check(self.default)
             if problem:
@@ -60,12 +63,20 @@ class Param:
         else:
             text = {"bool": "true or false", "str": "a string", "path": "a path", "list": "a list",
                     "weights": "a built-in weights name or a file"}[self.type]
+        if self.many:
+            text += " or a list of them"
         return text + (" or null" if self.nullable else "")
 
     def check(self, value: Any) -> str | None:
         """Return ``None`` if ``value`` is acceptable, else ``"expected ..., got ..."``."""
         if value is None:
             return None if self.nullable else f"expected {self.describe()}, got null"
+        bad = f"expected {self.describe()}, got {_show(value)}"
+        if self.many and isinstance(value, list):
+            return None if value and all(self._check_one(v) is None for v in value) else bad
+        return self._check_one(value)
+
+    def _check_one(self, value: Any) -> str | None:
         bad = f"expected {self.describe()}, got {_show(value)}"
         if self.type == "int":
             if isinstance(value, bool) or not isinstance(value, int):

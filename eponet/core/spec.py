@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import os
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -290,9 +291,8 @@ def parse_spec(
         params, param_problems = validate_params(config, spec.params, path)
         problems.extend(param_problems)
         for param in spec.params:
-            value = params.get(param.name)
-            if isinstance(value, str) and (param.type == "path" or (param.type == "weights" and value not in _builtin_weights())):
-                params[param.name] = str(resolve_path(f"{path}.{param.name}", value))
+            if param.type in ("path", "weights") and params.get(param.name) is not None:
+                params[param.name] = _resolve_files(param, params[param.name], partial(resolve_path, f"{path}.{param.name}"))
         if spec.check is not None and not param_problems:
             problems.extend(f"{path}.{problem}" for problem in spec.check(params))
         stages[kind] = StageConfig(kind, spec, params)
@@ -393,6 +393,16 @@ def _section(document: dict, name: str, schema: dict[str, Param], problems: list
     values, section_problems = validate_params(raw, tuple(schema.values()), name)
     problems.extend(section_problems)
     return values
+
+
+def _resolve_files(param, value, resolve):
+    """A ``path`` or ``weights`` parameter's value (one or a list) with each path made absolute by ``resolve``;
+    built-in weights names stay names."""
+    if isinstance(value, list):
+        return [_resolve_files(param, v, resolve) for v in value]
+    if param.type == "weights" and value in _builtin_weights():
+        return value
+    return str(resolve(value))
 
 
 def _builtin_weights() -> set[str]:

@@ -52,3 +52,15 @@ def test_required_parameter_missing():
 def test_invalid_default_is_a_programming_error():
     with pytest.raises(ValueError):
         Param("n", "int", -1, "bad default", minimum=0)
+
+
+def test_many_accepts_one_value_or_a_non_empty_list_of_them():
+    schema = (Param("weights", "weights", "a", "networks", many=True),)
+    for value in ("b", ["b"], ["b", "c"]):
+        values, problems = validate_params({"weights": value}, schema, "s")
+        assert problems == [] and values["weights"] == value
+    for bad in ([], ["b", ""], ["b", 3], {"b": 1}):
+        _, problems = validate_params({"weights": bad}, schema, "s")
+        assert problems == [f"s.weights: expected a built-in weights name or a file or a list of them, got {bad!r}"]
+    with pytest.raises(ValueError, match="many is for"):
+        Param("n", "int", 1, "a count", many=True)

@@ -75,7 +75,7 @@ def test_the_ed_encoding_is_trained_exported_and_loaded(tmp_path):
     assert "ED encoding log" in (tmp_path / "train" / "model-card.md").read_text()
     from eponet.plugins.motion_net.epo_unet import EpoUNetStage
 
-    assert EpoUNetStage(weights=summary["weights"], device="cpu").model.ed_encoding == "log"
+    assert EpoUNetStage(weights=summary["weights"], device="cpu").models[0].ed_encoding == "log"
 
 
 def test_resume_continues_exactly(tmp_path):

@@ -6,7 +6,7 @@ import logging
 
 import numpy as np
 
-from eponet.core.errors import MissingWeights
+from eponet.core.errors import MissingWeights, SpecError
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.motion import mirror_motion_images
 from eponet.core.params import Param
@@ -42,13 +42,35 @@ def _device(name: str):
     return torch.device(name)
 
 
-class EpoUNetStage:
-    """Per-frame inference of the U-Net, in batches, on CPU or GPU; with ``flip``, the mean of the foreground
-    probabilities of each motion image and of its mirror image (test-time augmentation, twice the cost)."""
+def _weights_list(weights: str | list[str], sha256: str | list[str] | None) -> list[tuple[str, str | None]]:
+    """Pairs (weights, expected sha256 or None) of a stage's ``weights`` and ``sha256`` parameters."""
+    names = weights if isinstance(weights, list) else [weights]
+    if sha256 is None or (isinstance(sha256, str) and len(names) == 1):
+        digests = [sha256] * len(names)
+    elif isinstance(sha256, list) and len(sha256) == len(names):
+        digests = sha256
+    else:
+        count = 1 if isinstance(sha256, str) else len(sha256)
+        raise SpecError(f"sha256: {count} checksum(s) for {len(names)} weights files; give one per file, in the "
+                        "same order, or none")
+    return list(zip(names, digests))
 
-    def __init__(self, *, weights: str = "epo-davis", sha256: str | None = None, batch_size: int = 8, device: str = "auto",
-                 flip: bool = False):
-        self.model, self.sha256 = load_unet(weights, sha256)
+
+class EpoUNetStage:
+    """Per-frame inference of the U-Net, in batches, on CPU or GPU.
+
+    ``weights`` may list several networks (an ensemble, e.g. one recipe trained with two seeds): the foreground
+    probability is the mean of theirs, for the cost of one network each. With ``flip``, each network's
+    probability is the mean of its predictions on the motion images and on their mirror images (test-time
+    augmentation, twice the cost).
+    """
+
+    def __init__(self, *, weights: str | list[str] = "epo-davis", sha256: str | list[str] | None = None,
+                 batch_size: int = 8, device: str = "auto", flip: bool = False):
+        loaded = [load_unet(name, digest) for name, digest in _weights_list(weights, sha256)]
+        self.models = [model for model, _ in loaded]
+        digests = [digest for _, digest in loaded]
+        self.sha256 = digests if isinstance(weights, list) else digests[0]
         self.batch_size = batch_size
         self.device = _device(device)
         self.flip = flip
@@ -56,15 +78,19 @@ class EpoUNetStage:
     def predict(self, motion_images: np.ndarray) -> np.ndarray:
         import torch
 
-        model = self.model.to(self.device).to(memory_format=torch.channels_last)
+        models = [model.to(self.device).to(memory_format=torch.channels_last) for model in self.models]
         out = np.empty((motion_images.shape[0],) + motion_images.shape[2:], np.float32)
         with torch.inference_mode():
             starts = range(0, len(motion_images), self.batch_size)
             for start in track(starts, desc="motion net", total=len(starts)):
                 images = motion_images[start : start + self.batch_size]
-                prob = self._probability(model, images)
-                if self.flip:
-                    prob = 0.5 * (prob + self._probability(model, mirror_motion_images(images)).flip(-1))
+                mirrored = mirror_motion_images(images) if self.flip else None
+                prob = 0
+                for model in models:
+                    prob = prob + self._probability(model, images)
+                    if mirrored is not None:
+                        prob = prob + self._probability(model, mirrored).flip(-1)
+                prob = prob / (len(models) * (2 if self.flip else 1))
                 out[start : start + len(images)] = prob.float().cpu().numpy()
         return out
 
@@ -78,7 +104,10 @@ class EpoUNetStage:
 
 def _check(params: dict) -> list[str]:
     try:
-        resolve_weights(params["weights"], sha256=params.get("sha256"), kind="motion_net")
+        for name, digest in _weights_list(params["weights"], params.get("sha256")):
+            resolve_weights(name, sha256=digest, kind="motion_net")
+    except SpecError as exc:
+        return exc.problems
     except MissingWeights as exc:
         return [f"weights: {exc}"]
     return []
@@ -92,8 +121,10 @@ def eponet_stages():
             name="epo_unet",
             factory=EpoUNetStage,
             params=(
-                Param("weights", "weights", "epo-davis", "built-in weights name or a weights file (.pt from eponet train)"),
-                Param("sha256", "str", None, "expected sha256 of a weights file (checked before loading)", nullable=True),
+                Param("weights", "weights", "epo-davis", "built-in weights name or a weights file (.pt from eponet "
+                      "train); a list of them averages the networks' probabilities", many=True),
+                Param("sha256", "str", None, "expected sha256 of the weights file (checked before loading); one per "
+                      "file for a list", nullable=True, many=True),
                 Param("batch_size", "int", 8, "frames per inference batch", minimum=1),
                 Param("device", "choice", "auto", "where to run: auto = GPU when available", choices=("auto", "cpu", "cuda")),
                 Param("flip", "bool", False, "test-time augmentation: average with the prediction on the mirrored "

@@ -3,13 +3,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
 
-from eponet.core.errors import MissingWeights
+from eponet.core.errors import MissingWeights, SpecError
 from eponet.nets import EpoUNet
 from eponet.plugins.motion_net.epo_unet import EpoUNetStage
+from eponet.weights import sha256_of
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -46,6 +48,56 @@ def test_flip_averages_with_the_mirrored_video_and_is_mirror_symmetric(tmp_path)
     assert np.abs(plain - on_mirror[..., ::-1]).max() > 1e-3  # the untrained network is not symmetric by itself
 
 
+def test_a_list_of_weights_averages_the_networks(tmp_path):
+    torch.manual_seed(0)
+    a = _save(tmp_path / "a.pt", depth=2, widths=(4, 8), head_channels=4)
+    b = _save(tmp_path / "b.pt", depth=3, widths=(4, 8, 8), head_channels=8, ed_encoding="log")
+    motion = np.random.default_rng(2).random((3, 3, 19, 30), dtype=np.float32) * 3 - 1
+    pa, pb = (EpoUNetStage(weights=str(p), device="cpu").predict(motion) for p in (a, b))
+    assert np.abs(pa - pb).max() > 1e-3
+    both = EpoUNetStage(weights=[str(a), str(b)], device="cpu", batch_size=2)
+    np.testing.assert_allclose(both.predict(motion), 0.5 * (pa + pb), atol=1e-6)
+    assert both.sha256 == [sha256_of(a), sha256_of(b)]
+    np.testing.assert_allclose(EpoUNetStage(weights=[str(a)], device="cpu").predict(motion), pa, atol=1e-6)
+    # with flip, the mean of the four predictions
+    fa, fb = (EpoUNetStage(weights=str(p), device="cpu", flip=True).predict(motion) for p in (a, b))
+    np.testing.assert_allclose(EpoUNetStage(weights=[str(a), str(b)], device="cpu", flip=True).predict(motion),
+                               0.5 * (fa + fb), atol=1e-6)
+    # one checksum per file, checked in order
+    EpoUNetStage(weights=[str(a), str(b)], sha256=[sha256_of(a), sha256_of(b)])
+    with pytest.raises(MissingWeights, match=r"b\.pt: checksum mismatch"):
+        EpoUNetStage(weights=[str(a), str(b)], sha256=[sha256_of(a), sha256_of(a)])
+    with pytest.raises(SpecError, match="sha256: 1 checksum"):
+        EpoUNetStage(weights=[str(a), str(b)], sha256=sha256_of(a))
+
+
+def test_a_spec_lists_weights_relative_to_its_folder(tmp_path):
+    from eponet.core.spec import parse_spec
+
+    (tmp_path / "nets").mkdir()
+    _save(tmp_path / "nets" / "a.pt", depth=2, widths=(4, 8), head_channels=4)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for t in range(3):
+        cv2.imwrite(str(frames / f"{t:05d}.png"), np.zeros((24, 32, 3), np.uint8))
+    doc = {"preset": "epo", "input": {"path": str(frames)}, "output": {"dir": str(tmp_path / "out")},
+           "stages": {"motion_net": {"plugin": "epo_unet", "weights": ["epo-davis", "nets/a.pt"]}}}
+    spec = parse_spec(doc, base_dir=tmp_path)
+    assert spec.stages["motion_net"].params["weights"] == ["epo-davis", str(tmp_path / "nets" / "a.pt")]
+    doc["stages"]["motion_net"]["weights"] = ["epo-davis", "nets/absent.pt"]
+    with pytest.raises(SpecError, match=r"stages\.motion_net\.weights: .*absent\.pt: weights file not found"):
+        parse_spec(doc, base_dir=tmp_path)
+    doc["stages"]["motion_net"]["weights"] = ["epo-davis", "nets/a.pt"]
+    doc["stages"]["motion_net"]["sha256"] = ["0" * 64]
+    with pytest.raises(SpecError, match=r"stages\.motion_net\.sha256: 1 checksum\(s\) for 2 weights files"):
+        parse_spec(doc, base_dir=tmp_path)
+    del doc["stages"]["motion_net"]["sha256"]
+    doc["stages"]["motion_net"]["weights"] = []
+    with pytest.raises(SpecError, match=r"stages\.motion_net\.weights: expected a built-in weights name or a file "
+                                        r"or a list of them, got \[\]"):
+        parse_spec(doc, base_dir=tmp_path)
+
+
 def test_checksum_mismatch_and_missing_file_are_clear_errors(tmp_path):
     path = _save(tmp_path / "w.pt", depth=2, widths=(4, 8), head_channels=4)
     with pytest.raises(MissingWeights, match="checksum mismatch"):
@@ -61,8 +113,10 @@ def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
     from tests.conftest import assert_shipped_weights
 
     assert_shipped_weights("epo-davis", "motion_net")
+    assert_shipped_weights("epo-davis-seed1", "motion_net")
     assert_shipped_weights("epo-davis-v3", "motion_net")
     EpoUNetStage()  # the default loads the built-in weights
+    assert len(EpoUNetStage(weights=["epo-davis", "epo-davis-seed1"]).models) == 2  # the epo preset's pair
 
 
 def test_epo_preset_on_the_embedded_demo_reaches_the_target_j(tmp_path):
