@@ -4,9 +4,10 @@ Trains one fusion per variant from ``examples/train-epo-plus.yaml`` (the shipped
 sequences) on top of a motion network trained without them (by default the ``ed+flow+dropout`` variant of
 ``benchmarks/epo_ablation.py``), then runs both presets end to end exactly as ``benchmarks/epo_ablation.py``
 scores EpO: 854x480 frames processed at scale 0.5, masks at 480p, DAVIS-2016 J, F and T against the 480p
-ground truth, with the threshold refiner (no CRF) and with the dense CRF of the presets.
+ground truth, with the threshold refiner (no CRF) and with the dense CRF of the presets. Several motion networks
+(comma-separated) are averaged, as the ``epo`` preset averages its two.
 
-    python benchmarks/epo_plus_ablation.py [--motion-net runs/ablation/ed+flow+dropout/weights.pt]
+    python benchmarks/epo_plus_ablation.py [--motion-net runs/ablation/ed+flow+dropout/weights.pt[,more.pt]]
                                            [--variants dropout,no-dropout] [--jobs 2] [--out runs/ablation-plus]
 
 Variants: ``dropout`` (the recipe, with the paper's input-dropout: the motion map zeroed on 20% of the training
@@ -34,7 +35,7 @@ RECIPE = ROOT / "examples" / "train-epo-plus.yaml"
 VARIANTS = ("dropout", "no-dropout", "paper")
 
 
-def variant_document(base: dict, name: str, motion_net: Path) -> dict:
+def variant_document(base: dict, name: str, motion_net: list[str]) -> dict:
     doc = copy.deepcopy(base)
     if name == "no-dropout":
         doc["input_dropout"]["probability"] = 0.0
@@ -42,14 +43,14 @@ def variant_document(base: dict, name: str, motion_net: Path) -> dict:
         doc["model"].update(motion_residual=False, feature_dropout=0.0)
     if name not in VARIANTS:
         raise SystemExit(f"unknown variant {name!r}; known: {', '.join(VARIANTS)}")
-    doc["motion_net"]["weights"] = str(motion_net)
+    doc["motion_net"]["weights"] = motion_net
     for phase in doc["phases"]:
         phase["data"]["davis"]["root"] = str((RECIPE.parent / phase["data"]["davis"]["root"]).resolve())
     doc["validation"]["davis"]["root"] = str((RECIPE.parent / doc["validation"]["davis"]["root"]).resolve())
     return doc
 
 
-def train(name: str, motion_net: Path, out: Path, threads: int | None, retrain: bool) -> tuple[str, float]:
+def train(name: str, motion_net: list[str], out: Path, threads: int | None, retrain: bool) -> tuple[str, float]:
     return name, train_variant(out / name, lambda: variant_document(yaml.safe_load(RECIPE.read_text()), name, motion_net),
                                threads, retrain)
 
@@ -61,22 +62,23 @@ def score(preset: str, stages: dict, out: Path, davis: Path, sequences: list[str
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--motion-net", type=Path, default=ROOT / "runs" / "ablation" / "ed+flow+dropout" / "weights.pt",
-                        help="EpO weights trained without the validation sequences")
+    parser.add_argument("--motion-net", default=str(ROOT / "runs" / "ablation" / "ed+flow+dropout" / "weights.pt"),
+                        help="EpO weights trained without the validation sequences (comma-separated: averaged)")
     parser.add_argument("--variants", default="dropout,no-dropout")
     parser.add_argument("--jobs", type=int, default=2, help="variants trained at once (one thread each)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "ablation-plus")
     parser.add_argument("--retrain", action="store_true")
     args = parser.parse_args()
-    if not args.motion_net.is_file():
-        raise SystemExit(f"{args.motion_net}: no motion network; train it with benchmarks/epo_ablation.py "
-                         "--variants ed+flow+dropout")
+    motion_net = [str(Path(p).resolve()) for p in args.motion_net.split(",") if p]
+    for path in motion_net:
+        if not Path(path).is_file():
+            raise SystemExit(f"{path}: no motion network; train it with benchmarks/epo_ablation.py "
+                             "--variants ed+flow+dropout")
     names = [n for n in args.variants.split(",") if n]
     base = yaml.safe_load(RECIPE.read_text())
     for name in names:
-        variant_document(base, name, args.motion_net)  # fail early on unknown names
+        variant_document(base, name, motion_net)  # fail early on unknown names
     threads = 1 if args.jobs > 1 else None
-    motion_net = args.motion_net.resolve()
     with ThreadPoolExecutor(args.jobs) as pool:
         seconds = dict(pool.map(lambda n: train(n, motion_net, args.out, threads, args.retrain), names))
 
@@ -84,9 +86,9 @@ def main() -> int:
     sequences = base["validation"]["davis"]["sequences"]
     davis = validation_root(davis, sequences, args.out)
     refiners = {"no CRF": {"plugin": "threshold"}, "CRF": {"plugin": "densecrf"}}  # the presets' CRF parameters
-    rows = {"EpO": ("epo", {"motion_net": {"plugin": "epo_unet", "weights": str(motion_net)}}, None)}
+    rows = {"EpO": ("epo", {"motion_net": {"plugin": "epo_unet", "weights": motion_net}}, None)}
     for name in names:
-        rows[f"EpO+ {name}"] = ("epo+", {"motion_net": {"plugin": "epo_unet", "weights": str(motion_net)},
+        rows[f"EpO+ {name}"] = ("epo+", {"motion_net": {"plugin": "epo_unet", "weights": motion_net},
                                          "fusion": {"plugin": "convgru", "weights": str(args.out / name / "weights.pt")}},
                                 name)
     results = {}
@@ -100,7 +102,7 @@ def main() -> int:
     print(f"{'method':<20}" + "".join(f"{m + ' ' + r:>11}" for r in refiners for m in ("J", "F", "T")))
     for label, row in results.items():
         print(f"{label:<20}" + "".join(f"{row[r][m]:>11.3f}" for r in refiners for m in ("J", "F", "T")))
-    (args.out / "ablation.json").write_text(json.dumps({"sequences": sequences, "motion_net": str(motion_net),
+    (args.out / "ablation.json").write_text(json.dumps({"sequences": sequences, "motion_net": motion_net,
                                                         "results": results}, indent=2))
     return 0
 
