@@ -28,10 +28,11 @@ import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from epo_ablation import RECIPE, ROOT, absolutise, run_validation, train_variant, validation_root  # noqa: E402
+from epo_ablation import RECIPE, ROOT, authors_crf, recipe_without, run_validation, train_variant, validation_root  # noqa: E402
 
+#: Split A is the recipe's validation split; B the second held-out split of the model cards.
 SPLITS = {
-    "A": ["bmx-bumps", "car-turn", "dance-jump", "hockey", "paragliding", "stroller"],
+    "A": yaml.safe_load(RECIPE.read_text())["validation"]["davis"]["sequences"],
     "B": ["breakdance-flare", "drift-turn", "horsejump-low", "motocross-bumps", "rhino", "scooter-gray"],
 }
 #: The authors' values ({}), each parameter moved on its own, and the preset's setting.
@@ -41,29 +42,24 @@ GRID = [{}, {"bilateral_compat": 3}, {"bilateral_compat": 8}, {"bilateral_compat
         {"iterations": 10}, {"bilateral_srgb": 5, "bilateral_compat": 8}]
 
 
-def recipe_without(sequences: list[str], seed: int) -> dict:
-    doc = absolutise(yaml.safe_load(RECIPE.read_text()), RECIPE.parent)
-    doc["phases"][0]["data"]["davis"]["exclude"] = list(sequences)
-    doc["validation"]["davis"]["sequences"] = list(sequences)
-    doc["seed"] = seed
-    return doc
-
-
 def _score_sequence(job: tuple) -> list[float]:
-    """J mean of one sequence for each setting (None: threshold at 0.5) of ``job``."""
+    """J mean of one sequence for each setting (None: threshold at 0.5; a dict: changes to the authors' CRF) of
+    ``job``."""
+    from eponet.core.io import read_image
     from eponet.evaluation.datasets import load_dataset
     from eponet.evaluation.metrics import db_eval_iou
     from eponet.plugins.refiner.densecrf import densecrf_mask
 
     root, saliency, name, settings = job
+    authors = {k: v for k, v in authors_crf().items() if k != "plugin"}
     sequence = load_dataset("davis2016", root, sequences=[name])[name]
     scores = [[] for _ in settings]
     for frame in sequence.scored:
-        image = cv2.cvtColor(cv2.imread(str(root / "JPEGImages" / "480p" / name / f"{frame}.png")), cv2.COLOR_BGR2RGB)
+        image = read_image(root / "JPEGImages" / "480p" / name / f"{frame}.png")
         probability = cv2.imread(str(saliency / name / "saliency" / f"{frame}.png"), cv2.IMREAD_GRAYSCALE) / 255.0
         gt, void = sequence.read_gt(frame)
         for scored, setting in zip(scores, settings):
-            mask = probability > 0.5 if setting is None else densecrf_mask(image, probability, max_size=427, **setting)
+            mask = probability > 0.5 if setting is None else densecrf_mask(image, probability, **{**authors, **setting})
             scored.append(db_eval_iou(mask.astype(bool), gt, void))
     return [float(np.mean(s)) for s in scores]
 
@@ -84,7 +80,7 @@ def main() -> int:
     weights = []
     for seed in seeds:
         folder = out / f"seed{seed}"
-        seconds = train_variant(folder, lambda seed=seed: recipe_without(sequences, seed), None, False)
+        seconds = train_variant(folder, lambda seed=seed: {**recipe_without(sequences), "seed": seed}, None, False)
         print(f"seed {seed}: {folder / 'weights.pt'} ({seconds / 60:.1f} min of training)", flush=True)
         weights.append(str(folder / "weights.pt"))
 

@@ -6,8 +6,8 @@ on eponet's 6-sequence DAVIS validation split.
 Each network is trained with ``examples/train-epo.yaml`` minus the validation sequences, with its flow stage
 set as in ``FLOWS``, and run with the ``epo`` pipeline on the same flow it was trained on: 854x480 frames (the
 240p frames upsampled, see ``epo_ablation.validation_root``) at scale 0.5. The masks are the saliency
-thresholded at 0.5 (no CRF) or refined by the ``epo`` preset's dense CRF; J, F and T follow the DAVIS-2016
-protocol against the 480p ground truth.
+thresholded at 0.5 (no CRF) or refined by the authors' dense CRF (``epo_ablation.authors_crf``); J, F and T
+follow the DAVIS-2016 protocol against the 480p ground truth.
 
     python benchmarks/epo_flow_ensemble.py [--out runs/flow-ensemble] [--jobs 2] [--retrain] [--split a,b,...]
 
@@ -30,8 +30,8 @@ import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from epo_ablation import (RECIPE, ROOT, absolutise, run_validation, summarise, train_variant,  # noqa: E402
-                          validation_root)
+from epo_ablation import (RECIPE, ROOT, authors_crf, recipe_without, run_validation, summarise,  # noqa: E402
+                          train_variant, validation_root)
 
 #: The flow stage of each network (the rest of the geometry is the recipe's).
 FLOWS = {"medium": {"plugin": "dis", "preset": "medium", "finest_scale": None},
@@ -39,11 +39,8 @@ FLOWS = {"medium": {"plugin": "dis", "preset": "medium", "finest_scale": None},
 
 
 def flow_document(flow: str, split: list[str] | None = None) -> dict:
-    doc = absolutise(yaml.safe_load(RECIPE.read_text()), RECIPE.parent)
+    doc = recipe_without(split)
     doc["geometry"]["stages"]["flow"] = dict(FLOWS[flow])
-    if split:
-        doc["phases"][-1]["data"]["davis"]["exclude"] = list(split)
-        doc["validation"]["davis"]["sequences"] = list(split)
     return doc
 
 
@@ -52,15 +49,6 @@ def saliency_maps(weights: Path, flow: str, out: Path, davis: Path, sequences: l
     stages = {"flow": FLOWS[flow], "motion_net": {"plugin": "epo_unet", "weights": str(weights)},
               "refiner": {"plugin": "threshold"}}
     run_validation(stages, out, davis, sequences, save=("saliency",))
-
-
-def crf_params() -> dict:
-    """The dense CRF parameters of the ``epo`` preset (the rest at the plugin's defaults)."""
-    from eponet.core.registry import get_registry
-
-    params = dict(get_registry().resolve_preset("epo")["refiner"])
-    assert params.pop("plugin") == "densecrf", "the epo preset's refiner is no longer the dense CRF"
-    return params
 
 
 def score_mean(folders: list[Path], davis: Path, sequences: list[str], out: Path, crf: dict) -> dict:
@@ -108,7 +96,7 @@ def main() -> int:
                             ROOT / "runs" / "ablation")
     for flow in FLOWS:
         saliency_maps(args.out / flow / "weights.pt", flow, args.out / flow / "saliency", davis, sequences)
-    crf = crf_params()
+    crf = {k: v for k, v in authors_crf().items() if k != "plugin"}
     combos = {"medium": ["medium"], "fine": ["fine"], "mean of both": list(FLOWS)}
     results = {}
     for label, flows in combos.items():

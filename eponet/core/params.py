@@ -71,9 +71,10 @@ class Param:
         """Return ``None`` if ``value`` is acceptable, else ``"expected ..., got ..."``."""
         if value is None:
             return None if self.nullable else f"expected {self.describe()}, got null"
-        bad = f"expected {self.describe()}, got {_show(value)}"
         if self.many and isinstance(value, list):
-            return None if value and all(self._check_one(v) is None for v in value) else bad
+            if value and all(self._check_one(v) is None for v in value):
+                return None
+            return f"expected {self.describe()}, got {_show(value)}"
         return self._check_one(value)
 
     def _check_one(self, value: Any) -> str | None:
