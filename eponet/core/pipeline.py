@@ -20,7 +20,7 @@ from .errors import EponetError, StageError
 from .imaging import resize_map
 from .inputs import discover_sequences, load_video
 from .io import atomic_write_bytes
-from .motion import motion_images
+from .motion import motion_images, normalise_ed
 from .outputs import SequenceOutputs, write_sequence
 from .spec import Spec
 from .types import FlowPair, RigidityResult, Trajectories, Video
@@ -105,8 +105,6 @@ class Pipeline:
                 self.cache.save("rigidity", rig_key, arrays, {"triplets": rigidity.triplets})
             result.ed = rigidity.ed
             timer.triplets = rigidity.triplets
-            from eponet.geometry import normalise_ed
-
             # unsaturated: the motion net saturates the ED channel as its weights were trained (ed_encoding)
             result.motion_images = motion_images(result.flow, normalise_ed(rigidity.ed, saturate=False))
         if "motion_net" in stages:

@@ -55,8 +55,9 @@ class RigidityModel(Protocol):
 class MotionNet(Protocol):
     def predict(self, motion_images: np.ndarray) -> np.ndarray:
         """Foreground probability float32 ``(F, H, W)`` in [0, 1] from motion images float32 ``(F, 3, H, W)``
-        holding normalised (dx, dy, ED): flow / ``FLOW_SCALE`` and ED scaled per video, its 95th percentile
-        at 250/255 and not clipped above (``eponet.geometry.normalise_ed(..., saturate=False)``)."""
+        holding normalised (dx, dy, ED): flow / ``FLOW_SCALE`` and ED scaled so that the 95th percentile of the
+        frames around each frame is 250/255, not clipped above (``eponet.core.motion.normalise_ed(...,
+        saturate=False)``); the network saturates ED itself (``eponet.core.motion.encode_ed``)."""
 
 
 @runtime_checkable

@@ -34,7 +34,7 @@ from .homography import (
     transfer,
     transfer_error_sq,
 )
-from .normalise import ED_FLOOR_PX, ED_PERCENTILE, ED_TARGET, ed_scale, hartley_normalisation, normalise_ed
+from .normalise import hartley_normalisation
 from .rigidity import GRIC_PARAMS, GROUP_PARAMS, ROBUST_PARAMS, STATIC_PARAMS, RigidityStage
 from .robust import draw_samples, gric, inlier_bound, ransac_trial_count, robust_search, robust_sigma2
 from .scoring import check_rigidity_inputs, ed_maps_from_scores, frame_groups, score_frame_groups
@@ -147,9 +147,4 @@ __all__ = [
     "ROBUST_PARAMS",
     # normalisation
     "hartley_normalisation",
-    "ED_PERCENTILE",
-    "ED_TARGET",
-    "ED_FLOOR_PX",
-    "ed_scale",
-    "normalise_ed",
 ]

@@ -1,5 +1,5 @@
 """Neural networks (torch modules), kept free of pipeline concerns."""
 
-from .unet import EpoUNet, INPUT_CHANNELS, encode_ed
+from .unet import EpoUNet, INPUT_CHANNELS
 
-__all__ = ["EpoUNet", "INPUT_CHANNELS", "encode_ed"]
+__all__ = ["EpoUNet", "INPUT_CHANNELS"]

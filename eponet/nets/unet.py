@@ -6,19 +6,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from eponet.core.motion import ED_ENCODINGS
+from eponet.core.motion import ED_ENCODINGS, encode_ed
 
-__all__ = ["EpoUNet", "INPUT_CHANNELS", "encode_ed"]
+__all__ = ["EpoUNet", "INPUT_CHANNELS"]
 
 #: Which channels of a (dx, dy, ED) motion image each input modality uses.
 INPUT_CHANNELS = {"ed+flow": (0, 1, 2), "flow": (0, 1), "ed": (2,)}
-
-
-def encode_ed(ed: torch.Tensor, encoding: str) -> torch.Tensor:
-    """Saturate scaled ED values (>= 0) as ``encoding`` says (``eponet.core.motion.ED_ENCODINGS``); same shape."""
-    if encoding == "clip":
-        return ed.clamp(max=1.0)
-    return torch.where(ed > 1.0, 1.0 + torch.log(ed.clamp(min=1.0)), ed)
 
 
 def _conv_bn_relu(cin: int, cout: int, kernel: int = 3) -> nn.Sequential:
@@ -91,7 +84,7 @@ class EpoUNet(nn.Module):
 
     def select_inputs(self, motion_images: torch.Tensor) -> torch.Tensor:
         """The channels of full (dx, dy, ED) motion images ``(B, 3, H, W)`` that this network reads, the ED
-        channel (scaled per video, unsaturated) saturated by ``ed_encoding``. A new tensor."""
+        channel (scaled over a window of frames, unsaturated) saturated by ``ed_encoding``. A new tensor."""
         x = motion_images[:, list(self.channels)]
         if 2 in self.channels:
             ed = self.channels.index(2)

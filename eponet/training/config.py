@@ -32,7 +32,7 @@ _MODEL = (
     Param("depth", "int", 4, "number of encoder (and decoder) blocks", minimum=2, maximum=4),
     Param("widths", "list", [16, 32, 64, 128], "channels of the encoder blocks, shallow to deep"),
     Param("head_channels", "int", 128, "channels before the 1x1 classifier (128 in the paper)", minimum=1),
-    Param("ed_encoding", "choice", "clip", "how the network saturates the per-video scaled ED channel: clip at "
+    Param("ed_encoding", "choice", "clip", "how the network saturates the scaled ED channel: clip at "
           "1 (the paper) or log (1 + ln ED above 1)", choices=ED_ENCODINGS),
 )
 _OPTIMIZER = (

@@ -76,7 +76,7 @@ def test_motion_images_carry_unsaturated_ed_for_the_network_to_encode(tmp_path):
     """The pipeline hands the motion net ED scaled per video but not clipped: a small object moving on its own
     (here a 6x6 patch, about 2% of the frame) keeps its ED well above the background's 95th percentile."""
     from eponet.core.inputs import discover_sequences, load_video
-    from eponet.geometry import normalise_ed
+    from eponet.core.motion import normalise_ed
 
     frames = textured_frames(6, (48, 64), shift=(1.0, 0.5), seed=0)
     patch = np.random.default_rng(5).integers(0, 256, (6, 6, 3), dtype=np.uint8)
