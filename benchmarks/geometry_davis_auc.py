@@ -1,7 +1,8 @@
 """How well ED separates the moving object on real video: per-frame ROC AUC of ED maps against the
 DAVIS-2016 ground-truth masks, per sequence, for four rigidity variants.
 
-Variants: ``default`` (trifocal, degeneracy gric, guided sampling), ``none`` (trifocal, degeneracy none),
+Variants: ``default`` (trifocal, degeneracy parallax, guided sampling with the border prior), ``gric`` (the
+previous default: degeneracy gric, no border prior), ``none`` (trifocal, degeneracy none),
 ``paper`` (trifocal, degeneracy none and uniform sampling: the paper's estimation), ``fundamental`` (pairwise
 F, USAC MAGSAC++) and ``homography`` (dominant homographies only); all other parameters at their defaults. All use the
 ``dense`` trajectories (defaults) on OpenCV DIS flow (preset medium) of the 427x240 frames; masks are
@@ -27,7 +28,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("EPONET_SHARED_DATA") or REPO.parent / "shared" / "data")
 DAVIS = DATA / "davis2016-train" / "DAVIS"
-VARIANTS = ("default", "none", "paper", "fundamental", "homography")
+VARIANTS = ("default", "gric", "none", "paper", "fundamental", "homography")
 
 
 def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:
@@ -50,6 +51,7 @@ def make_stage(variant: str):
 
     return {
         "default": TrifocalRigidity,
+        "gric": lambda: TrifocalRigidity(degeneracy="gric", border_prior=0.0),
         "none": lambda: TrifocalRigidity(degeneracy="none"),
         "paper": lambda: TrifocalRigidity(degeneracy="none", sampling="uniform"),
         "fundamental": FundamentalRigidity,

@@ -28,6 +28,16 @@ GROUP_PARAMS = (
         "(so a large or absorbed object cannot capture the background model); 'uniform' (the paper)",
         choices=("guided", "uniform"),
     ),
+    Param(
+        "border_prior",
+        "float",
+        0.15,
+        "with guided sampling: width of the frame-border band (fraction of the shorter side) whose points are "
+        "sampled up to 10 times as often as interior ones, the frame's edges being mostly background (so a "
+        "large object does not capture the background model); 0 disables it",
+        minimum=0.0,
+        maximum=0.5,
+    ),
 )
 
 #: The static-camera test (stages with an epipolar model).
@@ -85,6 +95,7 @@ class RigidityStage(ABC):
         max_points: int = 10000,
         stride: int = 1,
         sampling: str = "guided",
+        border_prior: float = 0.15,
         static_threshold: float = 0.25,
         confidence: float = 0.99,
         max_trials: int = 1000,
@@ -97,7 +108,10 @@ class RigidityStage(ABC):
             raise ValueError(f"stride must be >= 1, got {stride}")
         if sampling not in ("guided", "uniform"):
             raise ValueError(f"sampling must be 'guided' or 'uniform', got {sampling!r}")
+        if not 0.0 <= border_prior <= 0.5:
+            raise ValueError(f"border_prior must be in [0, 0.5], got {border_prior}")
         self.sampling = sampling
+        self.border_prior = float(border_prior)
         self.max_points = int(max_points)
         self.stride = int(stride)
         self.static_threshold = float(static_threshold)
@@ -109,8 +123,10 @@ class RigidityStage(ABC):
         )
 
     @abstractmethod
-    def estimate(self, points: list[np.ndarray], rng: np.random.Generator) -> FittedModel:
-        """The fitted model of one frame group's point tracks (a subclass's estimator)."""
+    def estimate(self, points: list[np.ndarray], rng: np.random.Generator,
+                 frame_size: tuple[int, int] | None = None) -> FittedModel:
+        """The fitted model of one frame group's point tracks (a subclass's estimator); ``frame_size`` is the
+        frames' ``(height, width)`` in pixels."""
 
     def score(self, trajectories: Trajectories, flow: FlowPair | None, rng: np.random.Generator) -> RigidityResult:
         """Per-pixel distance maps float32 ``(F, H, W)`` in pixels, per-trajectory means and per-group records.
@@ -123,8 +139,15 @@ class RigidityStage(ABC):
         if groups and groups[0][1] - groups[0][0] != self.stride:
             log.warning("video of %d frames is too short for stride %d; using %d",
                         trajectories.num_frames, self.stride, groups[0][1] - groups[0][0])
+        # tracks without a pixel grid (labels of 1 x 1, e.g. Hopkins155's feature tracks) have no frame border
+        frame_size = tuple(trajectories.labels.shape[1:]) if min(trajectories.labels.shape[1:]) > 1 else None
+
+        def estimate(points, generator):
+            return self.estimate(points, generator, frame_size)
+
         sums, counts, infos = score_frame_groups(
-            trajectories, groups, self.estimate, rng, max_points=self.max_points, sampling=self.sampling
+            trajectories, groups, estimate, rng, max_points=self.max_points, sampling=self.sampling,
+            border=self.border_prior,
         )
         per_trajectory, ed = ed_maps_from_scores(trajectories, sums, counts)
         return RigidityResult(ed=ed, per_trajectory=per_trajectory, triplets=infos)

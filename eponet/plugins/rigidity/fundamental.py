@@ -30,6 +30,7 @@ class FundamentalRigidity(RigidityStage):
         max_points: int = 10000,
         stride: int = 1,
         sampling: str = "guided",
+        border_prior: float = 0.15,
         static_threshold: float = 0.25,
         confidence: float = 0.99,
         max_trials: int = 1000,
@@ -39,14 +40,15 @@ class FundamentalRigidity(RigidityStage):
         if degeneracy not in ("gric", "none"):
             raise ValueError(f"degeneracy must be 'gric' or 'none', got {degeneracy!r}")
         super().__init__(
-            max_points=max_points, stride=stride, sampling=sampling, static_threshold=static_threshold,
+            max_points=max_points, stride=stride, sampling=sampling, border_prior=border_prior,
+            static_threshold=static_threshold,
             confidence=confidence,
             max_trials=max_trials, threshold=threshold, min_sigma=min_sigma,
         )
         self.degeneracy = degeneracy
         self.f_threshold = float(f_threshold)
 
-    def estimate(self, points: list[np.ndarray], rng: np.random.Generator) -> FittedModel:
+    def estimate(self, points: list[np.ndarray], rng: np.random.Generator, frame_size=None) -> FittedModel:
         return estimate_pair(*points, rng, degeneracy=self.degeneracy, static_threshold=self.static_threshold,
                              threshold=self.f_threshold, settings=self.settings)
 

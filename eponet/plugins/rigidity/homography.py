@@ -27,16 +27,18 @@ class HomographyRigidity(RigidityStage):
         max_points: int = 10000,
         stride: int = 1,
         sampling: str = "guided",
+        border_prior: float = 0.15,
         confidence: float = 0.99,
         max_trials: int = 1000,
         threshold: float | None = None,
     ):
         super().__init__(
-            max_points=max_points, stride=stride, sampling=sampling, static_threshold=0.0, confidence=confidence,
+            max_points=max_points, stride=stride, sampling=sampling, border_prior=border_prior,
+            static_threshold=0.0, confidence=confidence,
             max_trials=max_trials, threshold=threshold,
         )
 
-    def estimate(self, points: list[np.ndarray], rng: np.random.Generator) -> FittedModel:
+    def estimate(self, points: list[np.ndarray], rng: np.random.Generator, frame_size=None) -> FittedModel:
         return estimate_triplet(*points, rng, degeneracy="none", static_threshold=self.static_threshold,
                                 models=("homography",), settings=self.settings)
 

@@ -1,0 +1,173 @@
+"""Cross-validated accuracy over the 30 DAVIS-2016 train sequences: every sequence is scored by a model that
+never saw it.
+
+Protocol: the 30 sequences of ``ImageSets/train.txt`` are split into 5 folds of 6 (:data:`FOLDS`, fixed; a
+seeded shuffle, seed 0, of the sorted names). For fold ``i`` the motion network is trained with the shipped
+recipe (``examples/train-epo.yaml``) on the other 24 sequences, and the fold's 6 sequences are run end to end
+through the ``epo`` preset (its own CRF, as a user gets it; ``--refiner authors`` for the authors' CRF of the
+model cards' ablations) on 480p frames at scale 0.5 (the 240p frames upsampled, see
+:func:`epo_ablation.validation_root`) and scored at 480p with the DAVIS-2016 protocol (J, F, and T where
+``db_info.yml`` has ``eval_t``). ``--what ed`` needs no training: the mean per-frame ROC AUC of the ED maps
+(the rigidity stage's settings, given with ``--rigidity key=value``) per sequence, as
+``benchmarks/geometry_davis_auc.py`` computes it.
+
+The report gives every sequence, the mean, the worst, and the means per DAVIS attribute (AC, DB, FM, MB, OCC,
+as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
+
+    python benchmarks/kfold.py --what epo [--jobs 2] [--out runs/kfold-epo] [--folds 0,1]
+    python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-epo-new-ed \
+        --rigidity degeneracy=parallax border_prior=0.15     # the same networks on other ED
+    python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--flow-cache DIR]
+
+Trained folds (``weights.pt`` present) are reused; ``<out>/kfold.json`` holds every figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from epo_ablation import authors_crf, recipe_without, run_validation, train_variant, validation_root  # noqa: E402
+from geometry_davis_auc import DAVIS  # noqa: E402
+
+#: The paper's Table 3 attributes.
+ATTRIBUTES = ("AC", "DB", "FM", "MB", "OCC")
+
+
+def folds(names: list[str], k: int = 5, seed: int = 0) -> list[list[str]]:
+    """``k`` folds of the sorted names after a seeded shuffle (deterministic for a given list)."""
+    order = np.random.default_rng(seed).permutation(sorted(names))
+    return [sorted(order[i::k].tolist()) for i in range(k)]
+
+
+def attributes(root: Path = DAVIS) -> dict[str, list[str]]:
+    """Sequence name -> its DAVIS attributes, from ``db_info.yml``."""
+    info = yaml.safe_load((root / "db_info.yml").read_text())
+    return {s["name"]: list(s.get("attributes", [])) for s in info["sequences"]}
+
+
+def report(per_sequence: dict[str, dict], measures: tuple[str, ...], attrs: dict[str, list[str]],
+           wanted: tuple[str, ...] = ATTRIBUTES) -> str:
+    """A plain-text table: one row per sequence, then mean, worst, and the mean per attribute."""
+    lines = [f"{'sequence':<18}{'fold':>5}" + "".join(f"{m:>8}" for m in measures) + "  attributes"]
+    for name, row in sorted(per_sequence.items()):
+        values = "".join(f"{row[m]:>8.3f}" if row.get(m) is not None else f"{'-':>8}" for m in measures)
+        lines.append(f"{name:<18}{row['fold']:>5}{values}  {' '.join(attrs.get(name, []))}")
+
+    def mean(m, names):
+        v = [per_sequence[n][m] for n in names if per_sequence[n].get(m) is not None]
+        return f"{np.mean(v):>8.3f}" if v else f"{'-':>8}"
+
+    names = list(per_sequence)
+    lines.append(f"{'mean':<18}{len(names):>5}" + "".join(mean(m, names) for m in measures))
+    worst = [min((per_sequence[n][m] for n in names if per_sequence[n].get(m) is not None), default=None)
+             for m in measures]
+    lines.append(f"{'worst':<18}{'':>5}" + "".join(f"{w:>8.3f}" if w is not None else f"{'-':>8}" for w in worst))
+    for a in wanted:
+        members = [n for n in names if a in attrs.get(n, [])]
+        if members:
+            lines.append(f"{'attr ' + a:<18}{len(members):>5}" + "".join(mean(m, members) for m in measures))
+    return "\n".join(lines)
+
+
+def _finite(value):
+    return float(value) if value is not None and np.isfinite(value) else None
+
+
+def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None) -> dict[str, dict]:
+    """ED ROC AUC per sequence (no training, so the folds only label the rows)."""
+    import logging
+
+    import geometry_davis_auc as g
+    from eponet.plugins.rigidity.trifocal import TrifocalRigidity
+
+    logging.basicConfig(level=logging.ERROR)
+    g.make_stage = lambda variant: TrifocalRigidity(**rigidity)
+    out = {}
+    for i, names in enumerate(split):
+        for name in names:
+            r = g.sequence_auc(name, ("default",), flow_cache=flow_cache)
+            out[name] = {"fold": i, "AUC": r["default"], "models": r["default_models"]}
+            print(f"  {name:<18} AUC {r['default']:.3f} {r['default_models']}", flush=True)
+    return out
+
+
+def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: list[int], rigidity: dict,
+            weights: Path | None = None) -> dict[str, dict]:
+    """Train one network per fold (``jobs`` at once, one thread each; into ``weights`` or ``out``) and score
+    its held-out sequences, with the ``rigidity`` settings merged onto the preset's when given."""
+    weights = weights or out
+    threads = 1 if jobs > 1 else None
+
+    def train(i):
+        return train_variant(weights / f"fold{i}", lambda: recipe_without(split[i]), threads, retrain=False)
+
+    with ThreadPoolExecutor(jobs) as pool:
+        seconds = dict(zip(which, pool.map(train, which)))
+    davis = validation_root(DAVIS, [n for i in which for n in split[i]], out)
+    crf = authors_crf() if refiner == "authors" else None
+    per_sequence = {}
+    for i in which:
+        stages = {"motion_net": {"plugin": "epo_unet", "weights": str(weights / f"fold{i}" / "weights.pt")}}
+        if rigidity:
+            stages["rigidity"] = {"plugin": "trifocal", **rigidity}
+        if crf is not None:
+            stages["refiner"] = crf
+        manifest = run_validation(stages, out / f"fold{i}" / "heldout", davis, split[i],
+                                  evaluate={"dataset": "davis2016", "t": True})
+        for name, v in manifest["evaluation"]["sequences"].items():
+            per_sequence[name] = {"fold": i, "train_s": round(seconds[i], 1),
+                                  **{m: _finite(v.get(m, {}).get("mean")) for m in "JFT"}}
+    return per_sequence
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--what", choices=("ed", "epo"), required=True)
+    parser.add_argument("--out", type=Path, default=None, help="default: runs/kfold-<what>")
+    parser.add_argument("--jobs", type=int, default=2, help="folds trained at once (one thread each)")
+    parser.add_argument("--folds", default=None, help="comma-separated fold indices (default: all)")
+    parser.add_argument("--refiner", choices=("preset", "authors"), default="preset")
+    parser.add_argument("--rigidity", nargs="*", default=[],
+                        help="key=value settings of the trifocal stage (epo: merged onto the preset's when scoring)")
+    parser.add_argument("--weights", type=Path, default=None,
+                        help="epo: folder of already trained fold<i>/weights.pt to score (default: --out)")
+    parser.add_argument("--flow-cache", type=Path, default=None)
+    parser.add_argument("--attributes", nargs="*", default=list(ATTRIBUTES))
+    args = parser.parse_args(argv)
+    if not (DAVIS / "ImageSets" / "train.txt").exists():
+        print(f"DAVIS-2016 train data not found under {DAVIS} (set EPONET_SHARED_DATA)")
+        return 1
+    split = folds((DAVIS / "ImageSets" / "train.txt").read_text().split())
+    which = [int(i) for i in args.folds.split(",")] if args.folds else list(range(len(split)))
+    out = args.out or ROOT / "runs" / f"kfold-{args.what}"
+    out.mkdir(parents=True, exist_ok=True)
+    for i in which:
+        print(f"fold {i}: {', '.join(split[i])}")
+    rigidity = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.rigidity)}
+    if args.what == "ed":
+        per_sequence = run_ed([split[i] if i in which else [] for i in range(len(split))], rigidity, args.flow_cache)
+        measures = ("AUC",)
+        meta = {"rigidity": rigidity}
+    else:
+        per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights)
+        measures = ("J", "F", "T")
+        meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
+    text = report(per_sequence, measures, attributes(), tuple(args.attributes))
+    print(text)
+    (out / "kfold.json").write_text(json.dumps({"folds": split, **meta, "sequences": per_sequence}, indent=2))
+    (out / "kfold.txt").write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
