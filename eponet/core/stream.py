@@ -365,8 +365,8 @@ class SequenceStream:
         rigidity = self.stages["rigidity"]
         tracks, ids = self._timed("trajectories", lambda: assemble_trajectories([records[t] for t in range(first, stop)]))
         base = pending[0].t
-        window = [pending[t - base] for t in range(first, stop)]
-        flow = FlowPair(np.stack([i.forward for i in window[:-1]]), np.stack([i.backward for i in window[:-1]]))
+        pairs = [pending[t - base] for t in range(first, stop - 1)]  # frame stop - 1 may not have arrived yet
+        flow = FlowPair(np.stack([i.forward for i in pairs]), np.stack([i.backward for i in pairs]))
         result = self._timed("rigidity", lambda: rigidity.score(tracks, flow, rng))
         self._check_ed(result.ed, first, stop)
         infos = [dict(info) for info in result.triplets]
