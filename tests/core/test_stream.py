@@ -178,3 +178,21 @@ def test_masks_do_not_depend_on_the_number_of_workers(tmp_path):
     assert one["workers"] == 1 and two["workers"] == 2
     masks = {k: v for k, v in _files(tmp_path / "one").items() if "/masks/" in k}
     assert len(masks) == 18 and masks == {k: v for k, v in _files(tmp_path / "two").items() if "/masks/" in k}
+
+
+def test_core_imports_nothing_from_geometry_evaluation_or_weights():
+    import re
+    from pathlib import Path
+
+    core = Path(__file__).resolve().parents[2] / "eponet" / "core"
+    pattern = re.compile(r"^\s*(from|import)\s+(eponet\.|\.\.)(geometry|evaluation|weights)\b", re.M)
+    offenders = [p.name for p in core.glob("*.py") if pattern.search(p.read_text())]
+    assert offenders == []
+
+
+def test_plugins_command_prints_the_graph():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "eponet", "plugins", "rigidity"], capture_output=True, text=True).stdout
+    assert "protocol RigidityModel.score(); consumes trajectories, flow; produces ed; context groups; cached" in out
