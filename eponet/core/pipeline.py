@@ -365,22 +365,24 @@ def _run_in_workers(pipeline: Pipeline, sources: list[SequenceSource], workers: 
         futures = {pool.submit(_work, source): source for source in sources}
         error = None
         try:
-            while futures and error is None:
+            while futures:
                 done, _ = wait(futures, return_when=FIRST_COMPLETED)
                 for future in done:
                     source = futures.pop(future)
+                    if future.cancelled():
+                        continue
                     status, value = future.result()
                     if status == "ok":
-                        finished(source.name, value)
+                        finished(source.name, value)  # also after an error: what finished is kept
                     elif error is None:
                         error = _rebuilt_error(*value)
+                        for other in futures:  # those not started yet; running ones finish
+                            other.cancel()
         except BaseException:
             for future in futures:
                 future.cancel()
             raise
         if error is not None:
-            for future in futures:
-                future.cancel()
             raise error
 
 
