@@ -115,7 +115,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_plugins(args: argparse.Namespace) -> int:
-    from .core.protocols import KINDS
+    from .core.graph import KINDS, stage_kind
     from .core.registry import get_registry
 
     registry = get_registry()
@@ -123,7 +123,10 @@ def _cmd_plugins(args: argparse.Namespace) -> int:
     for kind in kinds:
         if kind not in KINDS:
             raise SpecError(f"unknown stage kind {kind!r}; kinds: {', '.join(KINDS)}")
-        print(f"{kind}:")
+        node = stage_kind(kind)
+        print(f"{kind}: {node.doc}")
+        print(f"  protocol {node.protocol.__name__}.{node.method}(); consumes {', '.join(node.consumes)}; produces "
+              f"{node.produces}; context {node.context}; {'cached' if node.cached else 'not cached'}")
         names = registry.names(kind)
         if not names:
             print("  (none installed)")

@@ -86,6 +86,10 @@ class Cache:
         self.hits.append(stage)
         return arrays, meta
 
+    def exists(self, stage: str, key: str) -> bool:
+        """Whether an entry is stored (without reading it); always ``False`` when disabled."""
+        return self.enabled and self._path(stage, key).is_file()
+
     def save(self, stage: str, key: str, arrays: dict[str, np.ndarray], meta: dict | None = None) -> None:
         if not self.enabled:
             return

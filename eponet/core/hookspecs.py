@@ -9,7 +9,7 @@ import pluggy
 
 from .params import Param
 
-__all__ = ["PROJECT", "hookspec", "hookimpl", "StageSpec", "eponet_stages"]
+__all__ = ["PROJECT", "hookspec", "hookimpl", "StageSpec", "eponet_stages", "eponet_evaluate", "eponet_weights"]
 
 PROJECT = "eponet"
 hookspec = pluggy.HookspecMarker(PROJECT)
@@ -45,3 +45,16 @@ def eponet_stages() -> list[StageSpec]:
         [project.entry-points."eponet.plugins"]
         myflow = "myflow.plugin"
     """
+
+
+@hookspec(firstresult=True)
+def eponet_evaluate(spec, sequences: list[str]) -> dict | None:
+    """Score the masks a run wrote under ``spec.output.dir`` for ``sequences`` as the spec's ``evaluate:``
+    section says; return the evaluation (JSON-serialisable) or ``None`` to leave it to another plugin. The
+    built-in implementation (``eponet.plugins.evaluate``) uses :mod:`eponet.evaluation`; core never imports it."""
+
+
+@hookspec
+def eponet_weights() -> list[str]:
+    """Names of the built-in weights this plugin ships (a spec's ``weights`` parameter may name them instead of a
+    file); the built-in implementation is ``eponet.plugins.weights`` (the sha256 catalog of ``eponet.weights``)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["resize_flow", "resize_map", "flow_to_color", "heat_map", "overlay_mask"]
+__all__ = ["resize_flow", "resize_map", "flow_to_color", "heat_map", "overlay_mask", "fill_from_neighbourhood"]
 
 
 def resize_flow(flow: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -53,3 +53,32 @@ def overlay_mask(frame: np.ndarray, mask: np.ndarray, color=(255, 40, 40), alpha
     contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     cv2.drawContours(out, contours, -1, (255, 255, 0), thickness=max(1, frame.shape[0] // 240))
     return out
+
+
+def fill_from_neighbourhood(image: np.ndarray, valid: np.ndarray, fallback: float = 0.0) -> np.ndarray:
+    """Replace invalid pixels by the value of the nearest valid pixel (Euclidean distance, 5x5 mask).
+
+    Used for the pixels of trajectories too short to be scored: they take the value of the nearest longer
+    trajectory in the same frame rather than 0 (a zero fill, the original's choice, hides moving objects).
+
+    Parameters
+    ----------
+    image : array (H, W)
+    valid : bool array (H, W)
+    fallback : float
+        Value used when no pixel is valid.
+
+    Returns
+    -------
+    array (H, W) float32
+    """
+    image = np.asarray(image, dtype=np.float32)
+    if valid.all():
+        return image.copy()
+    if not valid.any():
+        return np.full(image.shape, fallback, np.float32)
+    holes = (~valid).astype(np.uint8)
+    _, nearest = cv2.distanceTransformWithLabels(holes, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+    # labels 1..K enumerate the valid (zero) pixels in row-major order
+    lut = np.concatenate([[np.float32(fallback)], image[valid]])
+    return lut[nearest]

@@ -14,7 +14,7 @@ from .io import IMAGE_SUFFIXES, VIDEO_SUFFIXES, list_images, natural_key, read_i
 from .registry import nearest
 from .types import MIN_FRAMES, Video
 
-__all__ = ["SequenceSource", "discover_sequences", "load_video", "processing_size"]
+__all__ = ["SequenceSource", "discover_sequences", "iter_frames", "load_video", "processing_size"]
 
 log = logging.getLogger(__name__)
 
@@ -115,36 +115,63 @@ def _check_video(path: Path, max_frames: int | None) -> SequenceSource:
     return SequenceSource(name=path.stem, video=path, size=frame.shape[:2], count=count)
 
 
-def load_video(source: SequenceSource, *, scale: float, max_frames: int | None = None, keep_full: bool = True) -> Video:
-    """Decode a sequence; ``frames`` are resized to the processing resolution (``scale``)."""
+def iter_frames(source: SequenceSource, *, scale: float, max_frames: int | None = None, keep_full: bool = True):
+    """Decode a sequence lazily: yields ``(stem, frame, full)`` per frame, ``frame`` uint8 RGB at the processing
+    size (``scale``), ``full`` at the input size (``None`` unless ``keep_full``). One frame is decoded at a time.
+
+    Raises :class:`InputError` naming the file and frame for a corrupt frame, a frame whose size differs from
+    the first's, or a video with fewer than ``MIN_FRAMES`` decodable frames (a video's header frame count is
+    never trusted: frames are read until the decoder stops).
+    """
+    size = source.size
+    shape = None
+    count = 0
+    for stem, full, where in _decoded(source, max_frames):
+        if size is None:
+            size = full.shape[:2]
+        if full.shape[:2] != tuple(size):
+            raise InputError(f"{where}: frame {stem} is {full.shape[1]}x{full.shape[0]} but the first frame is "
+                             f"{size[1]}x{size[0]}")
+        shape = shape or processing_size(size, scale)
+        frame = full if shape == tuple(size) else cv2.resize(full, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+        count += 1
+        yield stem, frame, (full if keep_full else None)
+    if count < MIN_FRAMES:
+        raise InputError(f"{source.video or source.name}: {count} decodable frame(s), the pipeline needs at least "
+                         f"{MIN_FRAMES}")
+
+
+def _decoded(source: SequenceSource, max_frames: int | None):
     if source.files is not None:
-        full = [read_image(f) for f in source.files]
-        stems = [f.stem for f in source.files]
-        sources = [str(f) for f in source.files]
-    else:
-        full = []
-        capture = cv2.VideoCapture(str(source.video))
-        try:
-            while max_frames is None or len(full) < max_frames:
-                ok, frame = capture.read()
-                if not ok:
-                    break
-                full.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
-        finally:
-            capture.release()
-        if len(full) < MIN_FRAMES:
-            raise InputError(f"{source.video}: {len(full)} decodable frame(s), the pipeline needs at least {MIN_FRAMES}")
-        stems = [f"{t:05d}" for t in range(len(full))]
-        sources = [str(source.video)]
+        for file in source.files[:max_frames] if max_frames else source.files:
+            yield file.stem, read_image(file), file
+        return
+    capture = cv2.VideoCapture(str(source.video))
+    try:
+        t = 0
+        while max_frames is None or t < max_frames:
+            ok, frame = capture.read()
+            if not ok or frame is None:
+                break
+            yield f"{t:05d}", cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), f"{source.video} frame {t}"
+            t += 1
+    finally:
+        capture.release()
+
+
+def load_video(source: SequenceSource, *, scale: float, max_frames: int | None = None, keep_full: bool = True) -> Video:
+    """Decode a whole sequence into memory (:func:`iter_frames` collected); ``frames`` are at the processing
+    resolution (``scale``). The run loop streams instead; this is for tools that need the whole video."""
+    stems, frames, full = [], [], []
+    for stem, frame, whole in iter_frames(source, scale=scale, max_frames=max_frames, keep_full=True):
+        stems.append(stem)
+        frames.append(frame)
+        full.append(whole)
+    sources = [str(f) for f in source.files[: len(stems)]] if source.files is not None else [str(source.video)]
     size = full[0].shape[:2]
-    height, width = processing_size(size, scale)
-    if (height, width) == size:
-        frames = np.stack(full)
-    else:
-        frames = np.stack([cv2.resize(f, (width, height), interpolation=cv2.INTER_AREA) for f in full])
     return Video(
         name=source.name,
-        frames=frames,
+        frames=np.stack(frames),
         stems=stems,
         size=(int(size[0]), int(size[1])),
         sources=sources,

@@ -1,13 +1,15 @@
-"""Runs a validated spec: stage by stage per sequence, with caching, timings, outputs and a run manifest."""
+"""Runs a validated spec: the stages of the graph streamed over each sequence, sequences in worker processes,
+with caching, timings, outputs written as frames complete, and a run manifest written per finished sequence
+(so that a run that was interrupted resumes where it stopped)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
+import os
 import platform
-import sys
 import time
-import zlib
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from importlib import metadata
@@ -15,15 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .cache import Cache, array_digest, code_fingerprint, content_key
-from .errors import EponetError, StageError
-from .imaging import resize_map
-from .inputs import discover_sequences, load_video
+from .cache import Cache, code_fingerprint, content_key
+from .errors import EponetError, OutputError, StageError
+from .graph import GRAPH, check_stage, stage_kind
+from .inputs import SequenceSource, discover_sequences, iter_frames
 from .io import atomic_write_bytes
-from .motion import motion_images, normalise_ed
-from .outputs import SequenceOutputs, write_sequence
+from .outputs import SequenceOutputs, SequenceWriter, remove_partials
+from .progress import progress_enabled
 from .spec import Spec
-from .types import FlowPair, RigidityResult, Trajectories, Video
+from .stream import FrameItem, SequenceStream, video_digest
+from .types import FlowPair, Video
 
 __all__ = ["Pipeline", "run_spec", "library_versions"]
 
@@ -53,124 +56,168 @@ class _Timer:
 
 
 class Pipeline:
-    """Builds the stages of a spec once and runs them on sequences."""
+    """Builds the stages of a spec once (each checked against its kind's protocol) and runs them on sequences."""
 
     def __init__(self, spec: Spec, *, cache: Cache | None = None):
         self.spec = spec
         self.cache = cache or Cache(spec.cache_dir, enabled=spec.cache_enabled)
         self.stages = {}
-        for kind, config in spec.stages.items():
+        for node in GRAPH:
+            config = spec.stages.get(node.kind)
+            if config is None:
+                continue
             try:
-                self.stages[kind] = config.build()
+                stage = config.build()
             except EponetError:
                 raise
             except Exception as exc:
-                raise StageError(f"stages.{kind}: plugin {config.plugin!r} failed to start: {exc}") from exc
+                raise StageError(f"stages.{node.kind}: plugin {config.plugin!r} failed to start: {exc}") from exc
+            problem = check_stage(node.kind, config.plugin, stage)
+            if problem:
+                raise StageError(problem)
+            self.stages[node.kind] = stage
 
-    # -- one sequence --------------------------------------------------------------------------
+    # -- one sequence, whole -------------------------------------------------------------------
     def process(self, video: Video, timer: _Timer | None = None) -> SequenceOutputs:
-        """Run every stage on ``video``; returns what the outputs need."""
+        """Run every stage on an in-memory ``video`` (the same streaming loop as :meth:`run`); returns the whole
+        sequence's results (memory grows with the video: for tools such as the trainers)."""
         timer = timer or _Timer()
-        spec, stages = self.spec, self.stages
+        stream = SequenceStream(self, video.name, video.size, video.shape,
+                                digest=video_digest(video.frames) if self.cache.enabled else None)
+        items = []
+        frames = (FrameItem(t, video.stems[t], video.frames[t],
+                            video.full_frames[t] if video.full_frames is not None else None)
+                  for t in range(video.num_frames))
+        for item in stream.items(frames, threads=False):
+            items.append(item)
+        timer.timings.update(stream.timings)
+        timer.cached += stream.cached
+        timer.triplets = stream.triplets
         result = SequenceOutputs(video=video)
-        input_key = array_digest(video.frames)
-        key_of = self._key
-
-        flow_key = key_of("flow", input_key, stems=video.stems, size=video.size)
-        result.flow = self._cached("flow", flow_key, timer, video,
-                                   lambda: stages["flow"].estimate(video),
-                                   lambda f: ({"forward": f.forward, "backward": f.backward}, {}),
-                                   lambda a, m: FlowPair(a["forward"], a["backward"]))
-        _check_flow(result.flow, video)
-        if "rigidity" in stages:
-            traj_key = key_of("trajectories", flow_key)
-            rig_key = key_of("rigidity", traj_key, seed=spec.seed)
-            cached = self.cache.load("rigidity", rig_key)
-            if cached is not None:
-                rigidity = RigidityResult(cached[0]["ed"], cached[0].get("per_trajectory"), cached[1].get("triplets", []))
-                timer.timings["trajectories"] = 0.0
-                timer.timings["rigidity"] = 0.0
-                timer.cached += ["trajectories", "rigidity"]
-            else:
-                trajectories = self._cached("trajectories", traj_key, timer, video,
-                                            lambda: stages["trajectories"].build(result.flow),
-                                            lambda tr: ({k: getattr(tr, k) for k in ("start", "length", "offsets", "positions", "labels")}, {}),
-                                            lambda a, m: Trajectories(**a))
-                rng = np.random.default_rng([spec.seed, zlib.crc32(video.name.encode())])
-                rigidity = self._timed("rigidity", timer, video, lambda: stages["rigidity"].score(trajectories, result.flow, rng))
-                del trajectories
-                arrays = {"ed": rigidity.ed}
-                if rigidity.per_trajectory is not None:
-                    arrays["per_trajectory"] = rigidity.per_trajectory
-                self.cache.save("rigidity", rig_key, arrays, {"triplets": rigidity.triplets})
-            result.ed = rigidity.ed
-            timer.triplets = rigidity.triplets
-            # unsaturated: the motion net saturates the ED channel as its weights were trained (ed_encoding)
-            result.motion_images = motion_images(result.flow, normalise_ed(rigidity.ed, saturate=False))
-        if "motion_net" in stages:
-            saliency = self._timed("motion_net", timer, video, lambda: stages["motion_net"].predict(result.motion_images))
-            probability = saliency
-            if "fusion" in stages:
-                features = self.appearance_features(video, timer)
-                probability = self._timed("fusion", timer, video, lambda: stages["fusion"].fuse(features, saliency))
-            result.saliency = np.stack([resize_map(p, video.size) for p in probability]).clip(0, 1)
-        if "refiner" in stages:
-            frames = video.full_frames if video.full_frames is not None else video.frames
-            result.masks = self._timed("refiner", timer, video, lambda: stages["refiner"].refine(frames, result.saliency))
+        if items[0].forward is not None:
+            result.flow = FlowPair(np.stack([i.forward for i in items[:-1]]), np.stack([i.backward for i in items[:-1]]))
+        if items[0].ed is not None:
+            result.ed = np.stack([i.ed for i in items])
+        if items[0].motion_image is not None:
+            result.motion_images = np.stack([i.motion_image for i in items])
+        if items[0].probability is not None:
+            result.saliency = np.stack([i.probability for i in items])
+        if items[0].mask is not None:
+            result.masks = np.stack([i.mask for i in items])
         return result
 
     def appearance_features(self, video: Video, timer: _Timer | None = None) -> np.ndarray:
-        """The appearance stage's features float32 ``(F, C, h, w)`` of ``video.frames``, through the cache.
-
-        They are stored and returned at float16 precision (relative error <= 2**-11), which halves the cache
-        (a 240p frame's 472 EfficientNet-Lite0 channels take 1.5 MB instead of 3 MB); a cache hit and a fresh
-        computation therefore give the same values.
-        """
+        """The appearance stage's features float32 ``(F, C, h, w)`` of ``video.frames``, through the cache
+        (entries of ``run.chunk`` frames, the ones a run makes)."""
         if "appearance" not in self.stages:
             raise StageError("stages.appearance: the spec has no appearance stage")
-        key = self._key("appearance", array_digest(video.frames))
-        stored = self._cached("appearance", key, timer or _Timer(), video,
-                              lambda: self.stages["appearance"].features(video).astype(np.float16),
-                              lambda f: ({"features": f}, {}), lambda a, m: a["features"])
-        return stored.astype(np.float32)
+        stream = SequenceStream(self, video.name, video.size, video.shape)
+        chunk = self.spec.run.chunk
+        parts = []
+        for start in range(0, video.num_frames, chunk):
+            frames = video.frames[start : start + chunk]
+            parts.append(self.features_of(frames, Video(video.name, frames, video.stems[start : start + chunk],
+                                                        video.size), stream))
+        if timer is not None:
+            timer.timings.update(stream.timings)
+            timer.cached += [k for k in ("appearance",) if k in stream._hits and k not in stream._misses]
+        return np.concatenate(parts)
 
-    def _key(self, kind: str, upstream: str, **extra) -> str:
+    def features_of(self, frames: np.ndarray, video: Video, stream: SequenceStream) -> np.ndarray:
+        """Features of a chunk of frames through the cache. They are stored and returned at float16 precision
+        (relative error <= 2**-11), which halves the cache; a hit and a fresh computation give the same values."""
+        from .cache import array_digest
+
+        key = self.key("appearance", array_digest(frames))
+        hit = stream._cache_get("appearance", key)
+        if hit is not None:
+            return hit[0]["features"].astype(np.float32)
+        features = stream._timed("appearance", lambda: self.stages["appearance"].features(video).astype(np.float16))
+        if getattr(features, "ndim", 0) != 4 or features.shape[0] != len(frames):
+            raise StageError(f"{video.name}: stage appearance ({self.spec.stages['appearance'].plugin}) returned "
+                             f"features of shape {getattr(features, 'shape', None)}, expected ({len(frames)}, C, h, w)")
+        self.cache.save("appearance", key, {"features": features})
+        return features.astype(np.float32)
+
+    def key(self, kind: str, upstream: str, **extra) -> str:
         """Cache key of stage ``kind``: its plugin, version, code fingerprint, parameters and upstream key."""
         config = self.spec.stages[kind]
         code = code_fingerprint(config.spec.factory.__module__) if config.spec.package == "eponet" else None
         return content_key(stage=kind, plugin=config.plugin, version=config.spec.version, code=code,
                            params=config.params, upstream=upstream, **extra)
 
-    def _timed(self, kind: str, timer: _Timer, video: Video, compute):
-        start = time.perf_counter()
-        try:
-            value = compute()
-        except EponetError:
-            raise
-        except Exception as exc:
-            raise StageError(f"{video.name}: stage {kind} ({self.spec.stages[kind].plugin}) failed: "
-                             f"{exc.__class__.__name__}: {exc}") from exc
-        timer.timings[kind] = timer.timings.get(kind, 0.0) + time.perf_counter() - start
-        return value
+    # -- one sequence, streamed ----------------------------------------------------------------
+    def run_sequence(self, source: SequenceSource) -> dict:
+        """Stream one sequence through the stages, writing its outputs as frames complete; returns its
+        ``run.json`` entry."""
+        spec = self.spec
+        started = time.perf_counter()
+        needs_full = "refiner" in self.stages or bool({"panels", "overlay"} & set(spec.output.save))
+        digest = None
+        if self.cache.enabled:  # one decoding pass more, for cache keys that depend on the whole video
+            digest = video_digest(frame for _, frame, _ in iter_frames(source, scale=spec.input.scale,
+                                                                       max_frames=spec.input.max_frames,
+                                                                       keep_full=False))
+        frames = iter_frames(source, scale=spec.input.scale, max_frames=spec.input.max_frames, keep_full=needs_full)
+        first = next(frames)
+        size = first[2].shape[:2] if first[2] is not None else source.size
+        shape = first[1].shape[:2]
 
-    def _cached(self, kind: str, key: str, timer: _Timer, video: Video, compute, encode, decode):
-        hit = self.cache.load(kind, key)
-        if hit is not None:
-            timer.timings[kind] = 0.0
-            timer.cached.append(kind)
-            return decode(*hit)
-        value = self._timed(kind, timer, video, compute)
-        arrays, meta = encode(value)
-        self.cache.save(kind, key, arrays, meta)
-        return value
+        def items():
+            yield FrameItem(0, first[0], first[1], first[2])
+            for t, (stem, frame, full) in enumerate(frames, start=1):
+                yield FrameItem(t, stem, frame, full)
+
+        size = tuple(int(v) for v in (size or shape))
+        log.info("%s: frames at %dx%d (input %dx%d)", source.name, shape[1], shape[0], size[1], size[0])
+        stream = SequenceStream(self, source.name, size, tuple(int(v) for v in shape), digest=digest)
+        writer = SequenceWriter(spec.output.dir, source.name, spec.output.save, size, shape)
+        count = 0
+        bar = _bar(source.name, source.count)
+        try:
+            write_time = 0.0
+            for item in stream.items(items(), threads=spec.run.threads):
+                start = time.perf_counter()
+                writer.write(item)
+                write_time += time.perf_counter() - start
+                count += 1
+                if bar is not None:
+                    bar.update(1)
+            writer.close()
+        except BaseException:
+            writer.abort()
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+        stream.timings["write"] = write_time
+        return {
+            "frames": count,
+            "input_size": list(size),
+            "processing_size": list(shape),
+            "timings_s": {k: round(v, 4) for k, v in stream.timings.items()},
+            "seconds": round(time.perf_counter() - started, 3),
+            "cached": stream.cached,
+            "triplets": _summarise_triplets(stream.triplets),
+            "config": self.config_digest(),
+        }
+
+    def config_digest(self) -> str:
+        """What a sequence's outputs depend on besides its frames (stages, parameters, seed, run settings,
+        outputs): a finished sequence is reused on a re-run only when this is unchanged."""
+        document = {k: v for k, v in self.spec.document.items() if k not in ("cache", "evaluate")}
+        document["run"] = {k: v for k, v in document.get("run", {}).items() if k in ("chunk", "lag")}
+        return hashlib.sha256(json.dumps(document, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
     # -- a whole run ---------------------------------------------------------------------------
     def run(self) -> dict:
-        """Process every input sequence, write outputs and ``run.json``; returns the manifest."""
+        """Process every input sequence, write outputs and ``run.json`` (rewritten after every finished
+        sequence); sequences a previous run of the same spec finished are skipped. Returns the manifest."""
         spec = self.spec
         started = time.time()
         sources = discover_sequences(spec.input.path, sequences=spec.input.sequences,
                                      resolution=spec.input.resolution, max_frames=spec.input.max_frames)
+        remove_partials(spec.output.dir)
         manifest = {
             "eponet": _dist_version("eponet"),
             "spec_file": spec.file,
@@ -178,51 +225,165 @@ class Pipeline:
             "seed": spec.seed,
             "plugins": {kind: {"plugin": c.plugin, "package": c.spec.package, "version": c.spec.version,
                                "params": c.params} for kind, c in spec.stages.items()},
+            "weights_sha256": self.weights_digests(),
             "libraries": library_versions(),
             "started": datetime.fromtimestamp(started, timezone.utc).isoformat(timespec="seconds"),
             "sequences": {},
         }
+        config = self.config_digest()
+        earlier = _read_manifest(spec.output.dir / "run.json")
+        todo = []
         for source in sources:
-            video = load_video(source, scale=spec.input.scale, max_frames=spec.input.max_frames)
-            timer = _Timer()
-            log.info("%s: %d frames at %dx%d (input %dx%d)", video.name, video.num_frames, video.shape[1],
-                     video.shape[0], video.size[1], video.size[0])
-            result = self.process(video, timer)
-            start = time.perf_counter()
-            write_sequence(result, spec.output.dir, spec.output.save)
-            timer.timings["write"] = time.perf_counter() - start
-            manifest["sequences"][video.name] = {
-                "frames": video.num_frames,
-                "input_size": list(video.size),
-                "processing_size": list(video.shape),
-                "timings_s": {k: round(v, 4) for k, v in timer.timings.items()},
-                "cached": timer.cached,
-                "triplets": _summarise_triplets(timer.triplets),
-            }
+            entry = earlier.get(source.name)
+            if entry and entry.get("config") == config and (spec.output.dir / source.name).is_dir():
+                manifest["sequences"][source.name] = {**entry, "resumed": True}
+                log.info("%s: finished by an earlier run of this spec; skipped", source.name)
+            else:
+                todo.append(source)
+        workers = _workers(spec.run.workers, len(todo))
+        manifest["workers"] = workers
+        order = {s.name: k for k, s in enumerate(sources)}
+
+        def finished(name: str, entry: dict) -> None:
+            manifest["sequences"][name] = entry
+            manifest["sequences"] = dict(sorted(manifest["sequences"].items(), key=lambda kv: order.get(kv[0], 0)))
+            _write_manifest(spec.output.dir / "run.json", manifest)
+
+        if workers <= 1:
+            for source in todo:
+                finished(source.name, self.run_sequence(source))
+        else:
+            _run_in_workers(self, todo, workers, finished)
         if spec.evaluate is not None:
-            manifest["evaluation"] = self.evaluate([s.name for s in sources])
+            from .registry import get_registry
+
+            manifest["evaluation"] = get_registry().evaluate(spec, [s.name for s in sources])
         manifest["total_seconds"] = round(time.time() - started, 3)
-        atomic_write_bytes(spec.output.dir / "run.json", json.dumps(manifest, indent=2, default=_json_default).encode())
+        _write_manifest(spec.output.dir / "run.json", manifest)
         return manifest
 
-    def evaluate(self, sequences: list[str]) -> dict:
-        """Score the written masks against ground truth (the spec's ``evaluate:`` section)."""
-        from eponet.evaluation import evaluate
+    def weights_digests(self) -> dict:
+        """sha256 of every weights file the stages use (a stage's ``sha256`` attribute: one or a list)."""
+        return {kind: getattr(stage, "sha256") for kind, stage in self.stages.items()
+                if isinstance(getattr(stage, "sha256", None), (str, list))}
 
-        options = self.spec.evaluate
-        extra = {}
-        root = options.get("root") or self.spec.input.path
-        if options["dataset"] == "generic":  # ground-truth masks folder + the frames that were processed
-            root, extra["frames"] = options.get("masks") or root, self.spec.input.path
-        return evaluate(
-            options["dataset"],
-            root=root,
-            results=self.spec.output.dir,
-            sequences=sequences,
-            resolution=options.get("resolution") or self.spec.input.resolution,
-            compute_t=options.get("t", True),
-            **extra,
-        )
+
+def _bar(name: str, total: int):
+    if not progress_enabled():
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total or None, desc=name, unit="frame", leave=False, dynamic_ncols=True)
+
+
+def _workers(setting, sequences: int) -> int:
+    """Worker processes for ``sequences`` sequences: ``auto`` is one per core (at most one per sequence)."""
+    if setting == "auto":
+        return max(1, min(os.cpu_count() or 1, sequences))
+    return max(1, min(int(setting), max(sequences, 1)))
+
+
+def _read_manifest(path: Path) -> dict:
+    try:
+        return dict(json.loads(path.read_text()).get("sequences", {}))
+    except (OSError, ValueError, AttributeError):
+        return {}
+
+
+def _write_manifest(path: Path, manifest: dict) -> None:
+    try:
+        atomic_write_bytes(path, json.dumps(manifest, indent=2, default=_json_default).encode())
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write the run manifest ({exc.strerror or exc})") from None
+
+
+# -- worker processes ----------------------------------------------------------------------------
+_WORKER: Pipeline | None = None
+
+
+def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int) -> None:
+    global _WORKER
+    _limit_threads(threads)
+    from .progress import set_quiet
+
+    set_quiet(True)
+    _WORKER = Pipeline(spec, cache=Cache(cache_root, enabled=cache_enabled))
+
+
+def _limit_threads(threads: int) -> None:
+    """Each worker gets its share of the cores for torch and OpenCV, so that workers do not oversubscribe."""
+    import cv2
+
+    cv2.setNumThreads(threads)
+    try:
+        import torch
+
+        torch.set_num_threads(threads)
+    except ImportError:  # pragma: no cover - torch is a dependency
+        pass
+
+
+def _work(source: SequenceSource):
+    try:
+        return "ok", _WORKER.run_sequence(source)
+    except EponetError as exc:
+        return "error", (exc.__class__.__name__, exc.exit_code, str(exc))
+    except Exception as exc:  # reported in the parent as one line
+        return "error", ("StageError", 1, f"{source.name}: {exc.__class__.__name__}: {exc}")
+
+
+class _WorkerError(EponetError):
+    def __init__(self, message: str, exit_code: int):
+        super().__init__(message)
+        self.exit_code = exit_code
+
+
+def _rebuilt_error(name: str, exit_code: int, message: str) -> EponetError:
+    """The worker's error, as its own type where that is one of eponet's (so callers can catch it)."""
+    from . import errors
+
+    cls = getattr(errors, name, None)
+    if isinstance(cls, type) and issubclass(cls, EponetError) and cls is not errors.SpecError:
+        try:
+            error = cls(message)
+            error.exit_code = exit_code
+            return error
+        except TypeError:
+            pass
+    return _WorkerError(message, exit_code)
+
+
+def _run_in_workers(pipeline: Pipeline, sources: list[SequenceSource], workers: int, finished) -> None:
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    context = multiprocessing.get_context("spawn")  # no fork of a process whose torch/OpenCV threads run
+    cache = pipeline.cache
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker,
+                             initargs=(pipeline.spec, str(cache.root), cache.enabled, threads)) as pool:
+        futures = {pool.submit(_work, source): source for source in sources}
+        error = None
+        try:
+            while futures:
+                done, _ = wait(futures, return_when=FIRST_COMPLETED)
+                for future in done:
+                    source = futures.pop(future)
+                    if future.cancelled():
+                        continue
+                    status, value = future.result()
+                    if status == "ok":
+                        finished(source.name, value)  # also after an error: what finished is kept
+                    elif error is None:
+                        error = _rebuilt_error(*value)
+                        for other in futures:  # those not started yet; running ones finish
+                            other.cancel()
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+        if error is not None:
+            raise error
 
 
 def _summarise_triplets(triplets: list[dict]) -> dict:
@@ -234,15 +395,6 @@ def _summarise_triplets(triplets: list[dict]) -> dict:
         models[model] = models.get(model, 0) + 1
     fallbacks = sum(1 for t in triplets if t.get("fallback"))
     return {"count": len(triplets), "models": models, "fallbacks": fallbacks}
-
-
-def _check_flow(flow: FlowPair, video: Video) -> None:
-    expected = (video.num_frames - 1,) + video.shape + (2,)
-    for name, field_ in (("forward", flow.forward), ("backward", flow.backward)):
-        if field_.shape != expected:
-            raise StageError(f"{video.name}: {name} flow has shape {field_.shape}, expected {expected}")
-        if not np.isfinite(field_).all():
-            raise StageError(f"{video.name}: {name} flow has NaN or infinite values")
 
 
 def _json_default(value):

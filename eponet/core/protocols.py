@@ -11,23 +11,20 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .types import FlowPair, RigidityResult, Trajectories, Video
+from .types import FlowPair, RigidityResult, TrackFrame, Trajectories, Video
 
 __all__ = [
-    "KINDS",
     "FlowEstimator",
     "TrajectoryBuilder",
+    "TrajectoryStream",
     "RigidityModel",
     "MotionNet",
     "AppearanceBackbone",
     "Fusion",
     "Refiner",
-    "PROTOCOLS",
-    "METHODS",
 ]
 
-#: Stage kinds in pipeline order.
-KINDS = ("flow", "trajectories", "rigidity", "motion_net", "appearance", "fusion", "refiner")
+# The kinds, their order, what each consumes and produces and its method: eponet.core.graph.GRAPH.
 
 
 @runtime_checkable
@@ -42,13 +39,36 @@ class FlowEstimator(Protocol):
 @runtime_checkable
 class TrajectoryBuilder(Protocol):
     def build(self, flow: FlowPair) -> Trajectories:
-        """Dense trajectories covering every pixel of every frame (``labels`` is ``(F, H, W)``)."""
+        """Dense trajectories covering every pixel of every frame (``labels`` is ``(F, H, W)``).
+
+        A builder may also offer ``stream(shape) -> TrajectoryStream`` (shape ``(H, W)``): then the run loop
+        carries its live state from chunk to chunk and never holds the whole video's trajectories; without
+        it the loop calls ``build`` on the whole video's flow (memory grows with the video)."""
+
+
+@runtime_checkable
+class TrajectoryStream(Protocol):
+    """The live state of a trajectory builder over a stream of flow pairs (see
+    :class:`eponet.core.types.TrackFrame`); ids are numbered in birth order over the whole stream."""
+
+    def first(self) -> TrackFrame:
+        """Frame 0's trajectories."""
+
+    def push(self, forward: np.ndarray, backward: np.ndarray) -> TrackFrame:
+        """Frame t+1's trajectories, given the pair ``forward[t]``, ``backward[t]`` ``(H, W, 2)``."""
 
 
 @runtime_checkable
 class RigidityModel(Protocol):
     def score(self, trajectories: Trajectories, flow: FlowPair, rng: np.random.Generator) -> RigidityResult:
-        """Per-pixel epipolar distance (or model residual) maps, float32 ``(F, H, W)`` in pixels."""
+        """Per-pixel epipolar distance (or model residual) maps, float32 ``(F, H, W)`` in pixels.
+
+        The run loop calls it on windows of a stream (``trajectories`` and ``flow`` of a few dozen frames,
+        consecutive windows sharing ``(views - 1) * stride`` frames, the stage's optional attributes, default
+        3 and 1) with one generator drawn in order over the windows. When ``per_trajectory`` is given and each
+        ``triplets`` record has ``frames`` (window-local) and ``model`` (``"failed"``: not scored), a
+        trajectory's mean is accumulated over all of its groups across windows; otherwise each window's
+        ``ed`` is used as it is."""
 
 
 @runtime_checkable
@@ -79,25 +99,3 @@ class Refiner(Protocol):
     def refine(self, frames: np.ndarray, probability: np.ndarray) -> np.ndarray:
         """Binary masks uint8 ``(F, H, W)`` in {0, 1} from RGB ``frames`` uint8 ``(F, H, W, 3)`` and the
         foreground ``probability`` float32 ``(F, H, W)``, both at the input frame size."""
-
-
-PROTOCOLS = {
-    "flow": FlowEstimator,
-    "trajectories": TrajectoryBuilder,
-    "rigidity": RigidityModel,
-    "motion_net": MotionNet,
-    "appearance": AppearanceBackbone,
-    "fusion": Fusion,
-    "refiner": Refiner,
-}
-
-#: The method each kind's stages implement.
-METHODS = {
-    "flow": "estimate",
-    "trajectories": "build",
-    "rigidity": "score",
-    "motion_net": "predict",
-    "appearance": "features",
-    "fusion": "fuse",
-    "refiner": "refine",
-}

@@ -15,7 +15,7 @@ import yaml
 from . import hookspecs
 from .errors import DuplicatePlugin, EponetError, PluginLoadError, PluginNotFound
 from .hookspecs import PROJECT, StageSpec
-from .protocols import KINDS
+from .graph import KINDS
 
 __all__ = ["ENTRY_POINT_GROUP", "REGISTRY_FILE", "Registry", "get_registry", "nearest"]
 
@@ -66,6 +66,10 @@ class Registry:
             missing = [f"{k}/{n}" for k, n in expected if (k, n) not in provided]
             if missing:
                 raise EponetError(f"{registry_file}: module {module_name} does not provide {', '.join(missing)}")
+        for module_name in declared.get("hooks", []):  # built-in hook implementations that are not stages
+            module = importlib.import_module(module_name)
+            if not manager.is_registered(module):
+                manager.register(module, name=module_name)
         registry.presets = declared.get("presets", {})
         registry.default_preset = declared.get("default_preset", registry.default_preset)
         if entry_points:
@@ -109,6 +113,16 @@ class Registry:
         self.stages[key] = spec
 
     # -- lookup ---------------------------------------------------------------------------------
+    def evaluate(self, spec, sequences: list[str]) -> dict | None:
+        """The evaluation after a run, from the first ``eponet_evaluate`` implementation that gives one."""
+        assert self.manager is not None
+        return self.manager.hook.eponet_evaluate(spec=spec, sequences=sequences)
+
+    def builtin_weights(self) -> set[str]:
+        """Names of the weights that plugins ship (``eponet_weights``)."""
+        assert self.manager is not None
+        return {name for names in self.manager.hook.eponet_weights() for name in names or []}
+
     def names(self, kind: str) -> list[str]:
         return sorted(name for k, name in self.stages if k == kind)
 

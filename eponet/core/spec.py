@@ -14,7 +14,7 @@ import yaml
 from .errors import PluginNotFound, SpecError
 from .hookspecs import StageSpec
 from .params import Param, validate_params
-from .protocols import KINDS
+from .graph import KINDS, OUTPUTS, missing_needs, producer_of, producers
 from .registry import Registry, get_registry, nearest
 
 __all__ = [
@@ -23,6 +23,7 @@ __all__ = [
     "StageConfig",
     "InputConfig",
     "OutputConfig",
+    "RunConfig",
     "Spec",
     "load_spec",
     "parse_spec",
@@ -30,27 +31,8 @@ __all__ = [
     "default_cache_dir",
 ]
 
-TOP_LEVEL_KEYS = ("preset", "input", "stages", "output", "seed", "cache", "evaluate")
-SAVE_ITEMS = ("masks", "saliency", "ed", "flow", "motion_images", "overlay", "panels")
-
-# What each stage consumes ("a|b": one of them).
-_STAGE_NEEDS = {
-    "trajectories": ("flow",),
-    "rigidity": ("trajectories",),
-    "motion_net": ("flow", "rigidity"),
-    "fusion": ("appearance", "motion_net"),
-    "refiner": ("motion_net|fusion",),
-}
-# What each output needs.
-_SAVE_NEEDS = {
-    "masks": "refiner",
-    "overlay": "refiner",
-    "saliency": "motion_net",
-    "ed": "rigidity",
-    "motion_images": "rigidity",
-    "flow": "flow",
-    "panels": "flow",
-}
+TOP_LEVEL_KEYS = ("preset", "input", "stages", "output", "run", "seed", "cache", "evaluate")
+SAVE_ITEMS = tuple(OUTPUTS)
 
 _INPUT = {
     "path": Param("path", "path", None, "a folder of frames, a video file, or a DAVIS-layout root", required=True),
@@ -62,6 +44,16 @@ _INPUT = {
 _OUTPUT = {
     "dir": Param("dir", "path", None, "output folder (one sub-folder per sequence)", required=True),
     "save": Param("save", "list", ["masks"], "what to write: " + ", ".join(SAVE_ITEMS)),
+}
+_RUN = {
+    "chunk": Param("chunk", "int", 16, "frames per chunk: flow, rigidity windows (frame groups) and network batches "
+                   "work on this many frames at a time", minimum=2),
+    "lag": Param("lag", "int", 30, "frames a trajectory's ED may still change after a frame it covers is painted: "
+                 "frame t waits for every frame group starting by t + lag", minimum=0),
+    "workers": Param("workers", "str", "auto", "sequences processed at once in worker processes: 'auto' (one per "
+                     "core, at most one per sequence) or a number"),
+    "threads": Param("threads", "bool", True, "overlap the stages of one video in threads (flow of the next chunk "
+                     "while the networks work on this one)"),
 }
 _CACHE = {
     "enabled": Param("enabled", "bool", True, "reuse intermediate results (flow, trajectories, ED, ...)"),
@@ -109,6 +101,14 @@ class OutputConfig:
 
 
 @dataclass
+class RunConfig:
+    chunk: int = 16
+    lag: int = 30
+    workers: int | str = "auto"
+    threads: bool = True
+
+
+@dataclass
 class Spec:
     """A validated pipeline spec. ``document`` is the resolved YAML (for ``run.json``)."""
 
@@ -116,6 +116,7 @@ class Spec:
     input: InputConfig
     stages: dict[str, StageConfig]
     output: OutputConfig
+    run: RunConfig = field(default_factory=RunConfig)
     seed: int = 0
     cache_enabled: bool = True
     cache_dir: Path = field(default_factory=default_cache_dir)
@@ -229,6 +230,17 @@ def parse_spec(
     input_values = _section(document, "input", _INPUT, problems)
     output_values = _section(document, "output", _OUTPUT, problems)
     cache_values = _section(document, "cache", _CACHE, problems)
+    run_document = dict(document.get("run") or {}) if isinstance(document.get("run"), dict) else document.get("run")
+    if isinstance(run_document, dict) and isinstance(run_document.get("workers"), int) and not isinstance(run_document.get("workers"), bool):
+        run_document["workers"] = str(run_document["workers"])
+    run_values = _section({"run": run_document}, "run", _RUN, problems)
+    workers = run_values.get("workers", "auto")
+    if isinstance(workers, str) and workers != "auto":
+        if not workers.isdigit() or int(workers) < 1:
+            problems.append(f"run.workers: expected 'auto' or a positive integer, got {workers!r}")
+            workers = "auto"
+        else:
+            workers = int(workers)
     seed = document.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         problems.append(f"seed: expected a non-negative integer, got {seed!r}")
@@ -292,28 +304,22 @@ def parse_spec(
         problems.extend(param_problems)
         for param in spec.params:
             if param.type in ("path", "weights") and params.get(param.name) is not None:
-                params[param.name] = _resolve_files(param, params[param.name], partial(resolve_path, f"{path}.{param.name}"))
+                params[param.name] = _resolve_files(param, params[param.name], partial(resolve_path, f"{path}.{param.name}"),
+                                                    registry.builtin_weights)
         if spec.check is not None and not param_problems:
             problems.extend(f"{path}.{problem}" for problem in spec.check(params))
         stages[kind] = StageConfig(kind, spec, params)
 
-    # the composition must be complete
+    # the composition must be complete (the stage graph says what each stage and output needs)
     present = set(merged)
-    for kind, needs in _STAGE_NEEDS.items():
-        if kind not in present:
-            continue
-        for need in needs:
-            if need == "rigidity" and kind == "motion_net" and stages.get(kind) and stages[kind].params.get("inputs") == "flow":
-                continue
-            options = need.split("|")
-            if not any(option in present for option in options):
-                problems.append(f"stages.{kind}: needs a {' or '.join(options)} stage, which the spec does not have")
+    problems.extend(missing_needs({kind: (stages[kind].params if kind in stages else merged[kind]) for kind in merged}))
     if "flow" not in present:
         problems.append("stages.flow: every pipeline needs a flow stage")
+    made = producers(present)
     for item in save if isinstance(save, list) else []:
-        need = _SAVE_NEEDS.get(item)
-        if need and need not in present:
-            problems.append(f"output.save: {item!r} needs a {need} stage, which preset {preset_name!r} with these stages does not have")
+        need = OUTPUTS.get(item)
+        if need and need not in made:
+            problems.append(f"output.save: {item!r} needs a {producer_of(need)} stage, which preset {preset_name!r} with these stages does not have")
 
     evaluate = document.get("evaluate")
     if evaluate is not None:
@@ -334,6 +340,7 @@ def parse_spec(
         "input": {**input_values, "path": str(input_path)},
         "stages": {k: {"plugin": s.plugin, **s.params} for k, s in stages.items()},
         "output": {"dir": str(out_dir), "save": list(save)},
+        "run": {**run_values, "workers": workers},
         "seed": seed,
         "cache": {"enabled": cache_values["enabled"], "dir": str(cache_dir)},
     }
@@ -350,6 +357,7 @@ def parse_spec(
         ),
         stages=stages,
         output=OutputConfig(dir=out_dir, save=tuple(save)),
+        run=RunConfig(chunk=run_values["chunk"], lag=run_values["lag"], workers=workers, threads=run_values["threads"]),
         seed=seed,
         cache_enabled=cache_values["enabled"],
         cache_dir=cache_dir,
@@ -395,20 +403,14 @@ def _section(document: dict, name: str, schema: dict[str, Param], problems: list
     return values
 
 
-def _resolve_files(param, value, resolve):
+def _resolve_files(param, value, resolve, builtin_weights):
     """A ``path`` or ``weights`` parameter's value (one or a list) with each path made absolute by ``resolve``;
-    built-in weights names stay names."""
+    built-in weights names (``builtin_weights()``, from the registry) stay names."""
     if isinstance(value, list):
-        return [_resolve_files(param, v, resolve) for v in value]
-    if param.type == "weights" and value in _builtin_weights():
+        return [_resolve_files(param, v, resolve, builtin_weights) for v in value]
+    if param.type == "weights" and value in builtin_weights():
         return value
     return str(resolve(value))
-
-
-def _builtin_weights() -> set[str]:
-    from eponet.weights import builtin_weights
-
-    return set(builtin_weights())
 
 
 def _hint(name: str, candidates) -> str:

@@ -22,6 +22,8 @@ __all__ = [
     "FlowPair",
     "Trajectories",
     "RigidityResult",
+    "TrackFrame",
+    "assemble_trajectories",
     "check_shape",
 ]
 
@@ -128,3 +130,56 @@ class RigidityResult:
     ed: np.ndarray
     per_trajectory: np.ndarray | None = None
     triplets: list[dict] = field(default_factory=list)
+
+
+@dataclass
+class TrackFrame:
+    """The trajectories present in one frame ``t`` of a stream: their global ``ids`` int32 ``(N,)`` ascending
+    (ids are numbered in birth order over the whole video), their ``positions`` float32 ``(N, 2)`` (x, y) in
+    that frame, and ``labels`` int32 ``(H, W)``, the global id covering each pixel."""
+
+    t: int
+    ids: np.ndarray
+    positions: np.ndarray
+    labels: np.ndarray
+
+
+def assemble_trajectories(frames: list[TrackFrame]) -> tuple[Trajectories, np.ndarray]:
+    """The :class:`Trajectories` of consecutive stream frames (``frames[0].t`` becomes frame 0), and the
+    global id of each of its trajectories, int64 ``(T,)`` ascending.
+
+    A trajectory present in several of the frames is one trajectory (it lives on one contiguous interval);
+    one that started before ``frames[0]`` starts at frame 0 here, one that lives on past the last frame ends
+    there. Window-local ids keep the global order, so ``start`` is non-decreasing as the whole-video builder
+    gives it.
+
+    >>> a = TrackFrame(5, np.array([0, 1], np.int32), np.zeros((2, 2), np.float32), np.array([[0, 1]], np.int32))
+    >>> b = TrackFrame(6, np.array([1, 2], np.int32), np.ones((2, 2), np.float32), np.array([[2, 1]], np.int32))
+    >>> tracks, ids = assemble_trajectories([a, b])
+    >>> ids.tolist(), tracks.start.tolist(), tracks.length.tolist(), tracks.labels.tolist()
+    ([0, 1, 2], [0, 0, 1], [1, 2, 1], [[[0, 1]], [[2, 1]]])
+    """
+    if not frames:
+        raise ValueError("assemble_trajectories: no frames")
+    t0 = frames[0].t
+    ids = np.unique(np.concatenate([np.asarray(f.ids, np.int64) for f in frames]))
+    n = len(ids)
+    start = np.full(n, len(frames), np.int32)
+    end = np.full(n, -1, np.int32)
+    local = []
+    for k, frame in enumerate(frames):
+        if frame.t != t0 + k:
+            raise ValueError(f"assemble_trajectories: frame {k} is t={frame.t}, expected {t0 + k} (consecutive)")
+        loc = np.searchsorted(ids, frame.ids)
+        start[loc] = np.minimum(start[loc], k)
+        end[loc] = k
+        local.append(loc)
+    length = (end - start + 1).astype(np.int32)
+    offsets = np.zeros(n + 1, np.int64)
+    np.cumsum(length, out=offsets[1:])
+    positions = np.empty((int(offsets[-1]), 2), np.float32)
+    labels = np.empty((len(frames),) + frames[0].labels.shape, np.int32)
+    for k, (frame, loc) in enumerate(zip(frames, local)):
+        positions[offsets[loc] + (k - start[loc])] = frame.positions
+        labels[k] = np.searchsorted(ids, frame.labels)
+    return Trajectories(start=start, length=length, offsets=offsets, positions=positions, labels=labels), ids

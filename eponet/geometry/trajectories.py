@@ -11,14 +11,15 @@ from __future__ import annotations
 
 import logging
 
-import cv2
 import numpy as np
 
-from ..core.types import Trajectories
+from ..core.imaging import fill_from_neighbourhood
+from ..core.types import TrackFrame, Trajectories, assemble_trajectories
 from .consistency import exact_round_trip, fb_consistent_points, round_half_up, sample_bilinear
 
 __all__ = [
     "build_dense_trajectories",
+    "DenseTrajectoryStream",
     "trajectory_ends",
     "alive_in_frames",
     "trajectory_positions",
@@ -76,25 +77,48 @@ def build_dense_trajectories(
     (28, [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
     """
     n_pairs, h, w = forward.shape[:3]
-    n_frames = n_pairs + 1
-    hw = h * w
-    ys, xs = np.mgrid[0:h, 0:w]
-    grid = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
-
-    labels = np.empty((n_frames, h, w), np.int32)
-    ids = np.arange(hw, dtype=np.int32)
-    pos = grid.copy()
-    labels[0] = ids.reshape(h, w)
-    store = _ChunkStore(max(4 * hw, 1 << 22))
-    pos = store.add(pos)
-    frame_pos = [pos]  # positions of the trajectories alive at each frame, in ascending id order
-    births = [(0, hw)]  # (frame, count); ids are assigned in birth order
-    deaths: list[tuple[int, np.ndarray]] = []
-    next_id = hw
-
-    limits = np.array([w, h], np.float32)
+    stream = DenseTrajectoryStream((h, w), consistency=consistency, cull_collisions=cull_collisions)
+    frames = [stream.first()]
     for t in range(n_pairs):
-        fwd, bwd = forward[t], backward[t]
+        frames.append(stream.push(forward[t], backward[t]))
+    return assemble_trajectories(frames)[0]
+
+
+class DenseTrajectoryStream:
+    """The live state of :func:`build_dense_trajectories`, advanced one flow pair at a time.
+
+    ``first()`` returns frame 0's :class:`~eponet.core.types.TrackFrame` (every pixel starts a trajectory);
+    each ``push(forward[t], backward[t])`` returns frame t+1's. The state between calls is only the
+    trajectories alive at the last frame (ids and positions, 12 bytes each), so a stream of any length holds
+    memory of one frame's worth; ids are numbered in birth order across the whole stream, exactly as the
+    whole-video builder numbers them.
+    """
+
+    def __init__(self, shape: tuple[int, int], *, consistency: str = "tolerance", cull_collisions: bool = False):
+        if consistency not in ("tolerance", "exact"):
+            raise ValueError(f"consistency must be 'tolerance' or 'exact', got {consistency!r}")
+        self.h, self.w = int(shape[0]), int(shape[1])
+        self.consistency = consistency
+        self.cull_collisions = bool(cull_collisions)
+        hw = self.h * self.w
+        ys, xs = np.mgrid[0 : self.h, 0 : self.w]
+        self.grid = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
+        self.ids = np.arange(hw, dtype=np.int32)
+        self.pos = self.grid.copy()
+        self.next_id = hw
+        self.t = 0
+
+    def first(self) -> TrackFrame:
+        """Frame 0: one new trajectory per pixel."""
+        return TrackFrame(0, self.ids, self.pos, self.ids.reshape(self.h, self.w).copy())
+
+    def push(self, fwd: np.ndarray, bwd: np.ndarray) -> TrackFrame:
+        """Advance by the flow pair ``forward[t]``, ``backward[t]`` (each ``(H, W, 2)``); frame t+1's tracks."""
+        h, w, t = self.h, self.w, self.t
+        hw = h * w
+        pos, ids = self.pos, self.ids
+        fwd = np.asarray(fwd, np.float32)
+        bwd = np.asarray(bwd, np.float32)
         bad_f = bad_b = None
         # (a sum is finite only if every term is; cheaper than isfinite over the field)
         if not (np.isfinite(fwd.sum(dtype=np.float64)) and np.isfinite(bwd.sum(dtype=np.float64))):
@@ -106,18 +130,16 @@ def build_dense_trajectories(
                             t, int(bad_f.sum()), int(bad_b.sum()))
             else:  # finite values whose sum overflowed
                 bad_f = bad_b = None
-        if consistency == "tolerance":
+        if self.consistency == "tolerance":
             target, ok = fb_consistent_points(fwd, bwd, pos)
-        elif consistency == "exact":
+        else:
             target = pos + sample_bilinear(fwd, pos)
             r0 = round_half_up(pos)
             ok = exact_round_trip(fwd, bwd)[r0[:, 1], r0[:, 0]]
-        else:
-            raise ValueError(f"consistency must be 'tolerance' or 'exact', got {consistency!r}")
         # rounded target pixel; inside the frame iff 0 <= floor(p + 0.5) < (w, h) in both coordinates
         cell = target + np.float32(0.5)
         np.floor(cell, out=cell)
-        inside = (cell >= 0) & (cell < limits)
+        inside = (cell >= 0) & (cell < np.array([w, h], np.float32))
         ok &= inside.view(np.uint16)[:, 0] == 0x0101  # both booleans of a row true
         if bad_f is not None:
             r0 = round_half_up(pos)
@@ -134,71 +156,17 @@ def build_dense_trajectories(
         dup = np.bincount(pix, minlength=hw)[pix] > 1
         if dup.any():  # the oldest (lowest id) of the trajectories on one pixel covers it
             np.minimum.at(cover, pix[dup], kept_ids[dup])
-            if cull_collisions:
+            if self.cull_collisions:
                 win = cover[pix] == kept_ids
                 keep, kept_ids = keep[win], kept_ids[win]
-        if len(keep) < len(ids):
-            dead = np.ones(len(ids), bool)
-            dead[keep] = False
-            deaths.append((t, ids[dead]))
         new_pix = np.flatnonzero(cover < 0)
-        new_ids = np.arange(next_id, next_id + len(new_pix), dtype=np.int32)
+        new_ids = np.arange(self.next_id, self.next_id + len(new_pix), dtype=np.int32)
         cover[new_pix] = new_ids
-        next_id += len(new_pix)
-        births.append((t + 1, len(new_pix)))
-        labels[t + 1] = cover.reshape(h, w)
-        ids = np.concatenate([kept_ids, new_ids])
-        pos = store.add(_take_rows(target, keep), _take_rows(grid, new_pix))
-        frame_pos.append(pos)
-
-    n_traj = next_id
-    start = np.concatenate([np.full(c, f, np.int32) for f, c in births])
-    end = np.full(n_traj, n_frames - 1, np.int32)
-    for t, dead_ids in deaths:
-        end[dead_ids] = t
-    length = (end - start + 1).astype(np.int32)
-    offsets = np.zeros(n_traj + 1, np.int64)
-    np.cumsum(length, out=offsets[1:])
-    positions = np.empty((int(offsets[-1]), 2), np.float32)
-    for t in range(n_frames):
-        # the ids alive at t (ascending, as stored) follow from start and end: no need to keep them per frame
-        born = int(np.searchsorted(start, np.int32(t), side="right"))
-        ids_t = np.flatnonzero(end[:born] >= t)
-        _rows_view(positions)[offsets[ids_t] + (t - start[ids_t])] = _rows_view(frame_pos[t])
-        frame_pos[t] = None
-    del frame_pos, pos
-    store.clear()
-    return Trajectories(start=start, length=length, offsets=offsets, positions=positions, labels=labels)
-
-
-class _ChunkStore:
-    """Per-frame point arrays packed into a few large buffers.
-
-    Thousands of few-megabyte arrays kept alive between short-lived temporaries fragment the C heap, and the
-    freed memory is not returned to the system (about 0.5 GB at 854x480 x 100 frames); large buffers are
-    allocated and released as whole memory maps instead.
-    """
-
-    def __init__(self, chunk_points: int):
-        self.chunk_points = int(chunk_points)
-        self.chunks: list[np.ndarray] = []
-        self.used = 0
-
-    def add(self, *parts: np.ndarray) -> np.ndarray:
-        n = sum(len(p) for p in parts)
-        if not self.chunks or self.used + n > len(self.chunks[-1]):
-            self.chunks.append(np.empty((max(self.chunk_points, n), 2), np.float32))
-            self.used = 0
-        out = self.chunks[-1][self.used : self.used + n]
-        i = 0
-        for p in parts:
-            out[i : i + len(p)] = p
-            i += len(p)
-        self.used += n
-        return out
-
-    def clear(self) -> None:
-        self.chunks.clear()
+        self.next_id += len(new_pix)
+        self.ids = np.concatenate([kept_ids, new_ids])
+        self.pos = np.concatenate([_take_rows(target, keep), _take_rows(self.grid, new_pix)])
+        self.t = t + 1
+        return TrackFrame(t + 1, self.ids, self.pos, cover.reshape(h, w))
 
 
 def _rows_view(points: np.ndarray) -> np.ndarray:
@@ -254,32 +222,3 @@ def paint_trajectory_values(labels: np.ndarray, values: np.ndarray) -> np.ndarra
     array (F, H, W) float32
     """
     return np.asarray(values, dtype=np.float32)[labels]
-
-
-def fill_from_neighbourhood(image: np.ndarray, valid: np.ndarray, fallback: float = 0.0) -> np.ndarray:
-    """Replace invalid pixels by the value of the nearest valid pixel (Euclidean distance, 5x5 mask).
-
-    Used for the pixels of trajectories too short to be scored: they take the value of the nearest longer
-    trajectory in the same frame rather than 0 (a zero fill, the original's choice, hides moving objects).
-
-    Parameters
-    ----------
-    image : array (H, W)
-    valid : bool array (H, W)
-    fallback : float
-        Value used when no pixel is valid.
-
-    Returns
-    -------
-    array (H, W) float32
-    """
-    image = np.asarray(image, dtype=np.float32)
-    if valid.all():
-        return image.copy()
-    if not valid.any():
-        return np.full(image.shape, fallback, np.float32)
-    holes = (~valid).astype(np.uint8)
-    _, nearest = cv2.distanceTransformWithLabels(holes, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
-    # labels 1..K enumerate the valid (zero) pixels in row-major order
-    lut = np.concatenate([[np.float32(fallback)], image[valid]])
-    return lut[nearest]

@@ -46,6 +46,11 @@ def test_cache_skips_recomputation(frames_dir, tmp_path, monkeypatch):
     first = Pipeline(spec).run()
     assert first["sequences"]["clip"]["cached"] == []
     calls = []
+    # the same spec again is a finished run: its sequence is skipped, not recomputed
+    again = Pipeline(spec).run()
+    assert again["sequences"]["clip"].get("resumed") is True
+    # into another folder: every flow chunk comes from the cache
+    spec = _spec(frames_dir, tmp_path / "out2", tmp_path / "cache")
     pipeline = Pipeline(spec)
     original = pipeline.stages["flow"].estimate
     monkeypatch.setattr(pipeline.stages["flow"], "estimate", lambda video: calls.append(1) or original(video))
@@ -55,7 +60,8 @@ def test_cache_skips_recomputation(frames_dir, tmp_path, monkeypatch):
     third = Pipeline(_spec(frames_dir, tmp_path / "out", tmp_path / "cache", flow={"preset": "fast"})).run()
     assert third["sequences"]["clip"]["cached"] == []
     # the cache can be switched off
-    off = Pipeline(spec, cache=Cache(tmp_path / "cache", enabled=False)).run()
+    off = Pipeline(_spec(frames_dir, tmp_path / "out3", tmp_path / "cache"),
+                   cache=Cache(tmp_path / "cache", enabled=False)).run()
     assert off["sequences"]["clip"]["cached"] == []
 
 
@@ -68,7 +74,9 @@ def test_nothing_half_written_on_a_corrupt_frame(tmp_path):
     with pytest.raises(InputError, match=r"b/00002.png"):
         Pipeline(_spec(root, out, tmp_path / "cache")).run()
     assert (out / "a" / "flow").is_dir()  # the complete sequence is there
-    assert not (out / "b").exists() and not (out / "run.json").exists()
+    assert not (out / "b").exists()
+    # run.json is written per finished sequence: it lists the complete one only
+    assert list(json.loads((out / "run.json").read_text())["sequences"]) == ["a"]
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no partial folders left
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from eponet.core.errors import DuplicatePlugin, PluginNotFound
 from eponet.core.hookspecs import StageSpec
-from eponet.core.protocols import KINDS, METHODS, PROTOCOLS
+from eponet.core.graph import GRAPH, KINDS, check_stage, stage_kind
 from eponet.core.registry import Registry, get_registry
 
 REPO = Path(__file__).resolve().parents[2]
@@ -27,14 +27,16 @@ def test_every_builtin_satisfies_its_kind_protocol():
     for (kind, name), spec in registry.stages.items():
         if spec.package != "eponet":
             continue
-        assert callable(getattr(spec.factory, METHODS[kind], None)), f"{kind}/{name} lacks {METHODS[kind]}()"
+        method = stage_kind(kind).method
+        assert callable(getattr(spec.factory, method, None)), f"{kind}/{name} lacks {method}()"
         params = {p.name: p.default for p in spec.params}
         if name == "flo":
             params["path"] = "."
         if spec.check is not None and spec.check(params):
             continue  # needs a file (e.g. weights) that the defaults do not name
         stage = spec.factory(**params)
-        assert isinstance(stage, PROTOCOLS[kind]), f"{kind}/{name}"
+        assert isinstance(stage, stage_kind(kind).protocol), f"{kind}/{name}"
+        assert check_stage(kind, name, stage) is None
         # schema defaults equal the constructor's keyword defaults
         import inspect
 

@@ -8,7 +8,7 @@ from eponet.core.errors import InputError
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
 from eponet.core.types import MIN_FRAMES, FlowPair, Trajectories
-from eponet.geometry.trajectories import build_dense_trajectories
+from eponet.geometry.trajectories import DenseTrajectoryStream, build_dense_trajectories
 
 __all__ = ["DenseTrajectories", "eponet_stages"]
 
@@ -54,6 +54,13 @@ class DenseTrajectories:
             consistency=self.consistency,
             cull_collisions=self.cull_collisions,
         )
+
+    def stream(self, shape: tuple[int, int]) -> DenseTrajectoryStream:
+        """The builder's live state for a stream of flow pairs on frames of ``shape`` ``(H, W)``: the same
+        trajectories as :meth:`build`, one frame at a time (:class:`~eponet.core.protocols.TrajectoryStream`)."""
+        if shape[0] < 1 or shape[1] < 1:
+            raise InputError(f"flow has an empty frame size {shape[1]}x{shape[0]}")
+        return DenseTrajectoryStream(shape, consistency=self.consistency, cull_collisions=self.cull_collisions)
 
 
 @hookimpl

@@ -1,0 +1,159 @@
+"""Throughput and memory of ``python -m eponet.run`` as a user runs it (start-up and model loading included),
+against the machine's reference: OpenCV DIS ``medium`` forward+backward on the same frames at the processing size.
+
+    python benchmarks/bench_run.py [--preset epo] [--frames 40] [--workers auto,1] [--lengths 300,1000]
+
+Multi-sequence run: every DAVIS 480p sequence under ``--root`` (``../shared/data/davis2016-train/DAVIS``), at most
+``--frames`` frames each (``input.max_frames``), scale 0.5, cache off, masks written. For each ``--workers``
+setting: frames/s, CPU % of one core (user + system time of the run's processes over its wall time), peak RSS of
+the largest process and the share of each stage (from ``run.json``). Each figure is also given in reference
+units: ``R`` = milliseconds per frame of DIS medium forward+backward, measured in the same invocation on the
+same frames, single-threaded and with OpenCV's threads, so that figures from different days and machines
+compare as ratios (cost = wall ms per frame / R).
+
+``--lengths``: one long video per length, a DAVIS sequence played forwards and backwards (a folder of symbolic
+links to the frames, nothing copied) through the same command: frames/s and peak RSS against length.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DAVIS = Path(os.environ.get("EPONET_SHARED_DATA", ROOT.parent / "shared" / "data")) / "davis2016-train" / "DAVIS"
+
+
+def reference_ms(files: list[Path], scale: float, threads: int | None) -> float:
+    """Milliseconds per frame of DIS ``medium`` forward + backward between consecutive frames at ``scale``."""
+    previous = cv2.getNumThreads()
+    if threads is not None:
+        cv2.setNumThreads(threads)
+    try:
+        grey = []
+        for file in files:
+            image = cv2.imread(str(file), cv2.IMREAD_GRAYSCALE)
+            h, w = image.shape
+            grey.append(cv2.resize(image, (int(round(w * scale)), int(round(h * scale))), interpolation=cv2.INTER_AREA))
+        dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        dis.calc(grey[0], grey[1], None)  # warm-up
+        start = time.perf_counter()
+        for a, b in zip(grey[:-1], grey[1:]):
+            dis.calc(a, b, None)
+            dis.calc(b, a, None)
+        return (time.perf_counter() - start) * 1000 / (len(grey) - 1)
+    finally:
+        cv2.setNumThreads(previous)
+
+
+def run_cli(spec: dict, folder: Path, quiet: bool = True) -> dict:
+    """Run ``python -m eponet.run`` on ``spec`` in a child process; wall time, CPU time and peak RSS."""
+    import yaml
+
+    path = folder / "spec.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "eponet.run", str(path), "--no-cache", "-q"], cwd=folder,
+                          capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise SystemExit(f"eponet.run failed ({done.returncode}): {done.stderr.strip()}")
+    manifest = json.loads((Path(spec["output"]["dir"]) / "run.json").read_text())
+    frames = sum(s["frames"] for s in manifest["sequences"].values())
+    stages: dict[str, float] = {}
+    for entry in manifest["sequences"].values():
+        for kind, seconds in entry["timings_s"].items():
+            stages[kind] = stages.get(kind, 0.0) + seconds
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return {"frames": frames, "wall_s": wall, "fps": frames / wall, "cpu_percent": 100 * cpu / wall,
+            # ru_maxrss of RUSAGE_CHILDREN is the largest single descendant (KiB on Linux)
+            "peak_rss_mb": after.ru_maxrss / 1024, "stages_s": stages, "workers": manifest.get("workers")}
+
+
+def long_video(folder: Path, files: list[Path], length: int) -> Path:
+    """A frame folder of ``length`` symbolic links: the sequence forwards, backwards, forwards, ..."""
+    folder.mkdir(parents=True, exist_ok=True)
+    cycle = files + files[-2:0:-1]
+    for t in range(length):
+        (folder / f"{t:05d}{files[0].suffix}").symlink_to(cycle[t % len(cycle)])
+    return folder
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", default="epo")
+    parser.add_argument("--root", type=Path, default=DAVIS)
+    parser.add_argument("--frames", type=int, default=40, help="frames per sequence of the multi-sequence run")
+    parser.add_argument("--workers", default="auto,1", help="comma-separated run.workers settings to measure")
+    parser.add_argument("--lengths", default="", help="comma-separated lengths of single long videos (e.g. 300,1000)")
+    parser.add_argument("--scale", type=float, default=0.5)
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        help="extra spec values KEY.PATH=VALUE (YAML), e.g. run.chunk=32")
+    args = parser.parse_args()
+
+    import yaml
+
+    frames_root = args.root / "JPEGImages" / "480p"
+    sequences = sorted(p.name for p in frames_root.iterdir() if p.is_dir())
+    files = {name: sorted((frames_root / name).iterdir())[: args.frames] for name in sequences}
+    all_files = [f for name in sequences for f in files[name]]
+    r1 = np.mean([reference_ms(files[name], args.scale, 1) for name in sequences])
+    rn = np.mean([reference_ms(files[name], args.scale, None) for name in sequences])
+    h, w = cv2.imread(str(all_files[0])).shape[:2]
+    print(f"reference R: DIS medium forward+backward at {int(round(w * args.scale))}x{int(round(h * args.scale))}: "
+          f"{r1:.1f} ms/frame on one thread, {rn:.1f} ms/frame with {cv2.getNumThreads()} OpenCV threads "
+          f"({os.cpu_count()} cores)")
+
+    def spec_for(path: Path, out: Path, workers, max_frames=None) -> dict:
+        spec = {"preset": args.preset, "input": {"path": str(path), "scale": args.scale, "max_frames": max_frames},
+                "output": {"dir": str(out), "save": ["masks"]}, "run": {"workers": workers},
+                "cache": {"enabled": False}}
+        for item in args.overrides:
+            key, _, value = item.partition("=")
+            node = spec
+            for part in key.split(".")[:-1]:
+                node = node.setdefault(part, {})
+            node[key.split(".")[-1]] = yaml.safe_load(value)
+        return spec
+
+    with tempfile.TemporaryDirectory(prefix="bench-run-") as tmp:
+        tmp = Path(tmp)
+        results = {}
+        print(f"\n{len(sequences)} sequences x {args.frames} frames ({', '.join(sequences)}), preset {args.preset}:")
+        for workers in args.workers.split(","):
+            workers = workers if workers == "auto" else int(workers)
+            result = run_cli(spec_for(args.root, tmp / f"out-{workers}", workers, args.frames), tmp)
+            results[workers] = result
+            ms = 1000 / result["fps"]
+            total = sum(v for k, v in result["stages_s"].items()) or 1.0
+            shares = ", ".join(f"{k} {100 * v / total:.0f}%" for k, v in
+                               sorted(result["stages_s"].items(), key=lambda kv: -kv[1]))
+            print(f"  workers {workers} ({result['workers']} processes): {result['fps']:.2f} frames/s = {ms:.0f} ms/frame "
+                  f"= {ms / r1:.1f} R1 ({ms / rn:.1f} Rn); CPU {result['cpu_percent']:.0f}%; peak RSS "
+                  f"{result['peak_rss_mb']:.0f} MB; wall {result['wall_s']:.1f} s; stage time: {shares}")
+        if "auto" in results and 1 in results:
+            print(f"  speed-up auto / 1: {results['auto']['fps'] / results[1]['fps']:.2f}x")
+        lengths = [int(v) for v in args.lengths.split(",") if v]
+        for length in lengths:
+            folder = long_video(tmp / f"long-{length}" / "video", files[sequences[0]], length)
+            result = run_cli(spec_for(folder, tmp / f"long-out-{length}", 1), tmp)
+            ms = 1000 / result["fps"]
+            print(f"  one video of {length} frames ({sequences[0]} forwards and backwards): {result['fps']:.2f} frames/s "
+                  f"= {ms / r1:.1f} R1; CPU {result['cpu_percent']:.0f}%; peak RSS {result['peak_rss_mb']:.0f} MB")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,575 @@
+"""The streaming run loop of one sequence: frames decoded lazily and passed through the stage graph in chunks,
+so that memory is bounded by a window of frames, not by the length of the video.
+
+Each stage of :data:`eponet.core.graph.GRAPH` is driven by its temporal context:
+
+- ``pairs`` (flow): chunks of ``run.chunk + 1`` frames, consecutive chunks sharing one frame.
+- ``state`` + ``groups`` (trajectories, rigidity): the trajectory builder's live state is advanced one flow
+  pair at a time; the rigidity stage scores windows of ``run.chunk`` frame groups (plus the
+  ``(views - 1) * stride`` frames the last group reaches), each group in exactly one window, with one seeded
+  generator drawn in order over the windows. Each trajectory's mean distance is accumulated over its groups
+  across windows. **Lag**: frame t is painted once every group starting at or before ``t + run.lag`` has been
+  scored; a trajectory covering t that ended by then has its final mean, a longer one the mean over its groups
+  so far (it has run at least ``lag`` frames past t).
+- ED scale: the motion net's ED scale of frame t is the 95th percentile over frames ``t - 30 .. t + 30``
+  (:data:`eponet.core.motion.ED_WINDOW`), so it waits for 30 painted frames of look-ahead.
+- ``frame`` (motion net, appearance, refiner): batches of ``run.chunk`` frames.
+- ``window`` (fusion): the stage's own ``window`` / ``overlap`` windows, each run as soon as its frames exist;
+  every frame is taken from the window where it lies farthest from an inner window edge (centre stitching).
+
+With ``run.chunk`` and ``run.lag`` at least the video's length the loop computes exactly what a whole-video
+composition of the same stages computes (``tests/core/test_stream.py``); shorter settings differ only in what
+the lag cuts off and in the rigidity's guided sampling, whose history restarts at each window.
+
+Memory: about ``chunk + lag + 30`` frames of flow, trajectory records and ED maps at the processing size, plus
+``chunk`` full-size frames (and the fusion's window) at a time.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import queue
+import threading
+import time
+import zlib
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from .cache import array_digest
+from .errors import EponetError, StageError
+from .graph import stage_kind
+from .imaging import fill_from_neighbourhood, resize_map
+from .motion import ED_TARGET, ED_WINDOW, FLOW_SCALE, ed_frame_sample, ed_window_scale, normalise_ed
+from .types import FlowPair, TrackFrame, Video, assemble_trajectories
+
+__all__ = ["FrameItem", "SequenceStream", "video_digest", "prefetch"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class FrameItem:
+    """What the loop knows about frame ``t`` as it moves through the stages (maps at the processing size unless
+    stated)."""
+
+    t: int
+    stem: str
+    frame: np.ndarray  # uint8 (h, w, 3)
+    full: np.ndarray | None = None  # uint8 (H, W, 3) at the input size
+    forward: np.ndarray | None = None  # flow t -> t+1 (None for the last frame)
+    backward: np.ndarray | None = None  # flow t+1 -> t on the grid of t+1 (pair t)
+    motion_flow: np.ndarray | None = None  # the frame's motion: forward, or -backward of the last pair
+    ed: np.ndarray | None = None  # float32 (h, w), pixels
+    ed_scale: float | None = None  # pixels: the ED scale of the frames around t
+    motion_image: np.ndarray | None = None  # float32 (3, h, w)
+    saliency: np.ndarray | None = None  # float32 (h, w): the motion net's probability
+    features: np.ndarray | None = None  # float32 (C, fh, fw)
+    fused: np.ndarray | None = None  # float32 (h, w): the fusion's probability
+    probability: np.ndarray | None = None  # float32 (H, W) at the input size: what the refiner reads
+    mask: np.ndarray | None = None  # uint8 (H, W)
+
+
+def video_digest(frames: Iterable[np.ndarray]) -> str:
+    """sha256 over the processing-size frames of a video, frame by frame (the same for a stream and an array)."""
+    digest = hashlib.sha256()
+    for frame in frames:
+        digest.update(array_digest(np.asarray(frame)).encode())
+    return digest.hexdigest()
+
+
+class _Stop:
+    pass
+
+
+def prefetch(iterator: Iterator, depth: int, name: str) -> Iterator:
+    """Run ``iterator`` in a background thread, at most ``depth`` items ahead: the stages upstream of this point
+    work on the next chunk while those downstream work on this one (numpy, OpenCV and torch release the GIL in
+    their heavy loops). An exception upstream is raised here, in order."""
+    channel: queue.Queue = queue.Queue(maxsize=max(1, depth))
+    stop = threading.Event()
+
+    def produce():
+        try:
+            for item in iterator:
+                while not stop.is_set():
+                    try:
+                        channel.put(item, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            channel.put(_Stop)
+        except BaseException as exc:  # handed to the consumer
+            channel.put(exc)
+
+    thread = threading.Thread(target=produce, name=f"eponet-{name}", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item = channel.get()
+            if item is _Stop:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+
+
+@dataclass
+class _Accumulator:
+    """Summed distances and group counts of the trajectories still needed, by ascending global id."""
+
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    sums: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    def add(self, ids: np.ndarray, sums: np.ndarray, counts: np.ndarray) -> None:
+        union = np.union1d(self.ids, ids)
+        new_sums, new_counts = np.zeros(len(union)), np.zeros(len(union), np.int64)
+        old = np.searchsorted(union, self.ids)
+        new_sums[old], new_counts[old] = self.sums, self.counts
+        at = np.searchsorted(union, ids)
+        new_sums[at] += sums
+        new_counts[at] += counts
+        self.ids, self.sums, self.counts = union, new_sums, new_counts
+
+    def keep(self, alive: np.ndarray) -> None:
+        mask = np.isin(self.ids, alive, assume_unique=False)
+        self.ids, self.sums, self.counts = self.ids[mask], self.sums[mask], self.counts[mask]
+
+    def means(self, labels: np.ndarray) -> np.ndarray:
+        """Mean distance of the trajectory covering each pixel (NaN where none was scored)."""
+        at = np.clip(np.searchsorted(self.ids, labels), 0, max(len(self.ids) - 1, 0))
+        if not len(self.ids):
+            return np.full(labels.shape, np.nan, np.float32)
+        found = self.ids[at] == labels
+        counts = np.where(found, self.counts[at], 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means = np.where(counts > 0, (self.sums[at] / np.maximum(counts, 1)).astype(np.float32), np.nan)
+        return means.astype(np.float32)
+
+    def median(self) -> float:
+        scored = self.counts > 0
+        return float(np.median((self.sums[scored] / self.counts[scored]).astype(np.float32))) if scored.any() else 0.0
+
+
+class SequenceStream:
+    """Runs the stages of a :class:`~eponet.core.pipeline.Pipeline` over one sequence as a chain of generators
+    of :class:`FrameItem`; :meth:`items` yields every frame once all stages are done with it."""
+
+    def __init__(self, pipeline, name: str, size: tuple[int, int], shape: tuple[int, int], *, digest: str | None = None):
+        self.pipeline = pipeline
+        self.spec = pipeline.spec
+        self.stages = pipeline.stages
+        self.name = name
+        self.size = size  # input (H, W)
+        self.shape = shape  # processing (h, w)
+        self.chunk = self.spec.run.chunk
+        self.lag = self.spec.run.lag
+        self.digest = digest
+        self.timings: dict[str, float] = {}
+        self.cached: list[str] = []
+        self.triplets: list[dict] = []
+        self._misses: set[str] = set()
+        self._hits: set[str] = set()
+
+    # -- the chain ------------------------------------------------------------------------------
+    def items(self, frames: Iterator[FrameItem], *, threads: bool = True) -> Iterator[FrameItem]:
+        stages = self.stages
+        stream = self._flow(frames)
+        if threads:
+            stream = prefetch(stream, self.chunk + 1, "flow")
+        if "rigidity" in stages:
+            stream = self._geometry(stream)
+            stream = self._ed_scale(stream)
+            if threads:
+                stream = prefetch(stream, self.chunk, "geometry")
+        if "motion_net" in stages or "rigidity" in stages or "motion_images" in self.spec.output.save:
+            stream = self._motion_images(stream)
+        if "motion_net" in stages:
+            stream = self._per_frame("motion_net", stream, self._predict)
+        if "appearance" in stages and "fusion" in stages:
+            stream = self._per_frame("appearance", stream, self._features)
+        if "fusion" in stages:
+            stream = self._fusion(stream)
+        stream = self._probability(stream)
+        if "refiner" in stages:
+            stream = self._per_frame("refiner", stream, self._refine)
+        yield from stream
+        for kind in ("flow", "rigidity", "appearance"):
+            if kind in self._hits and kind not in self._misses:
+                self.cached += ["trajectories", "rigidity"] if kind == "rigidity" else [kind]
+
+    def _timed(self, kind: str, compute):
+        start = time.perf_counter()
+        try:
+            value = compute()
+        except EponetError:
+            raise
+        except Exception as exc:
+            raise StageError(f"{self.name}: stage {kind} ({self.spec.stages[kind].plugin}) failed: "
+                             f"{exc.__class__.__name__}: {exc}") from exc
+        self.timings[kind] = self.timings.get(kind, 0.0) + time.perf_counter() - start
+        return value
+
+    def _cache_get(self, kind: str, key: str):
+        hit = self.pipeline.cache.load(kind, key)
+        (self._hits if hit is not None else self._misses).add(kind)
+        return hit
+
+    # -- pairs: flow ----------------------------------------------------------------------------
+    def _flow(self, frames: Iterator[FrameItem]) -> Iterator[FrameItem]:
+        buffer: list[FrameItem] = []
+        before_last = None
+        for item in frames:
+            buffer.append(item)
+            if len(buffer) == self.chunk + 1:
+                self._flow_chunk(buffer)
+                before_last = buffer[-2]
+                yield from buffer[:-1]
+                buffer = buffer[-1:]
+        if len(buffer) > 1:
+            self._flow_chunk(buffer)
+            before_last = buffer[-2]
+        last = buffer[-1]
+        last.motion_flow = -before_last.backward
+        yield from buffer[:-1]
+        yield last
+
+    def _flow_chunk(self, items: list[FrameItem]) -> None:
+        frames = np.stack([item.frame for item in items])
+        stems = [item.stem for item in items]
+        video = Video(self.name, frames, stems, self.size)
+        key = self.pipeline.key("flow", array_digest(frames), stems=stems, size=self.size)
+        hit = self._cache_get("flow", key)
+        if hit is not None:
+            flow = FlowPair(hit[0]["forward"], hit[0]["backward"])
+        else:
+            flow = self._timed("flow", lambda: self.stages["flow"].estimate(video))
+            self.pipeline.cache.save("flow", key, {"forward": flow.forward, "backward": flow.backward})
+        expected = (len(items) - 1,) + self.shape + (2,)
+        for direction, field_ in (("forward", flow.forward), ("backward", flow.backward)):
+            if field_.shape != expected:
+                raise StageError(f"{self.name}: {direction} flow of frames {stems[0]}..{stems[-1]} has shape "
+                                 f"{field_.shape}, expected {expected}")
+            if not np.isfinite(field_).all():
+                raise StageError(f"{self.name}: {direction} flow of frames {stems[0]}..{stems[-1]} has NaN or "
+                                 "infinite values")
+        for k, item in enumerate(items[:-1]):
+            item.forward, item.backward = flow.forward[k], flow.backward[k]
+            item.motion_flow = item.forward
+
+    # -- state + groups: trajectories and rigidity ----------------------------------------------
+    def _geometry(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
+        """ED maps of every frame: from the cache when a complete earlier run of the same video and settings left
+        them (blocks of ``chunk`` frames and an index written last, so a run killed half-way never counts), else
+        scored by :meth:`_scored_geometry` and saved block by block."""
+        cache = self.pipeline.cache
+        key = None
+        if self.digest is not None and cache.enabled:
+            key = self.pipeline.key("rigidity", self.pipeline.key("trajectories", self.digest), seed=self.spec.seed,
+                                    chunk=self.chunk, lag=self.lag)
+            index = cache.load("rigidity", f"{key}-index")
+            blocks = int(index[1].get("blocks", -1)) if index is not None else -1
+            if blocks >= 0 and all(cache.exists("rigidity", f"{key}-{k}") for k in range(blocks)):
+                self._hits.add("rigidity")
+                self.triplets = index[1].get("triplets", [])
+                yield from self._cached_geometry(stream, key)
+                return
+            self._misses.add("rigidity")
+        block: list[np.ndarray] = []
+        count = 0
+        for item in self._scored_geometry(stream):
+            block.append(item.ed)
+            if key is not None and len(block) == self.chunk:
+                cache.save("rigidity", f"{key}-{count}", {"ed": np.stack(block)})
+                block, count = [], count + 1
+            yield item
+        if key is not None:
+            if block:
+                cache.save("rigidity", f"{key}-{count}", {"ed": np.stack(block)})
+                count += 1
+            cache.save("rigidity", f"{key}-index", {}, {"blocks": count, "triplets": self.triplets})
+
+    def _cached_geometry(self, stream: Iterator[FrameItem], key: str) -> Iterator[FrameItem]:
+        loaded, maps = -1, None
+        for item in stream:
+            block = item.t // self.chunk
+            if block != loaded:
+                hit = self.pipeline.cache.load("rigidity", f"{key}-{block}")
+                if hit is None:
+                    raise StageError(f"{self.name}: cache entry {key}-{block} of the ED maps is unreadable; run with "
+                                     "--no-cache or remove it")
+                loaded, maps = block, hit[0]["ed"]
+            item.ed = maps[item.t % self.chunk]
+            yield item
+
+    def _scored_geometry(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
+        builder, rigidity = self.stages["trajectories"], self.stages["rigidity"]
+        views, stride = int(getattr(rigidity, "views", 3)), int(getattr(rigidity, "stride", 1))
+        span = (views - 1) * stride
+        rng = np.random.default_rng([self.spec.seed, zlib.crc32(self.name.encode())])
+        state = None
+        whole: list = []  # a builder without stream(): its flow, built at the end (memory grows with the video)
+        records: dict[int, TrackFrame] = {}
+        pending: deque[FrameItem] = deque()
+        acc = _Accumulator()
+        direct: dict[int, np.ndarray] = {}
+        g_next = 0  # first frame group not yet scored
+        last_t = -1
+        for item in stream:
+            last_t = item.t
+            pending.append(item)
+            if not hasattr(builder, "stream"):
+                whole.append(item)
+                continue
+            if state is None:
+                state = self._timed("trajectories", lambda: builder.stream(self.shape))
+                records[0] = self._timed("trajectories", state.first)
+            if item.forward is not None:
+                records[item.t + 1] = self._timed("trajectories", lambda: state.push(item.forward, item.backward))
+                available = item.t + 1
+                while g_next + self.chunk - 1 + span <= available:
+                    self._score_window(records, pending, g_next, g_next + self.chunk + span, rng, acc, direct,
+                                       owned=self.chunk)
+                    g_next += self.chunk
+                    self._forget(records, pending, acc, g_next)
+            while pending and pending[0].t + self.lag < g_next and pending[0].t + 1 in records:
+                yield self._paint(pending.popleft(), records, acc, direct)
+        frames = last_t + 1
+        if whole:
+            tracks = self._timed("trajectories", lambda: builder.build(FlowPair(
+                np.stack([i.forward for i in whole[:-1]]), np.stack([i.backward for i in whole[:-1]]))))
+            result = self._timed("rigidity", lambda: rigidity.score(tracks, FlowPair(
+                np.stack([i.forward for i in whole[:-1]]), np.stack([i.backward for i in whole[:-1]])), rng))
+            self._check_ed(result.ed, 0, frames)
+            self.triplets += list(result.triplets)
+            for item in whole:
+                item.ed = result.ed[item.t]
+            yield from whole
+            return
+        if frames - 1 - span >= g_next or g_next == 0:
+            self._score_window(records, pending, g_next, frames, rng, acc, direct, owned=frames - g_next)
+        while pending:
+            yield self._paint(pending.popleft(), records, acc, direct)
+
+    def _score_window(self, records, pending, first, stop, rng, acc, direct, *, owned) -> None:
+        """Score frames ``first .. stop - 1`` (groups starting at ``first .. first + owned - 1``)."""
+        rigidity = self.stages["rigidity"]
+        tracks, ids = self._timed("trajectories", lambda: assemble_trajectories([records[t] for t in range(first, stop)]))
+        base = pending[0].t
+        pairs = [pending[t - base] for t in range(first, stop - 1)]  # frame stop - 1 may not have arrived yet
+        flow = FlowPair(np.stack([i.forward for i in pairs]), np.stack([i.backward for i in pairs]))
+        result = self._timed("rigidity", lambda: rigidity.score(tracks, flow, rng))
+        self._check_ed(result.ed, first, stop)
+        infos = [dict(info) for info in result.triplets]
+        groups = [info.get("frames") for info in infos]
+        for info in infos:
+            if isinstance(info.get("frames"), list):
+                info["frames"] = [int(f) + first for f in info["frames"]]
+        self.triplets += infos
+        if result.per_trajectory is None or any(not isinstance(g, list) or not g for g in groups):
+            for t in range(first, min(stop, first + owned)):  # the window's own maps, as they are
+                direct[t] = result.ed[t - first]
+            return
+        start = tracks.start.astype(np.int64)
+        end = start + tracks.length - 1
+        counts = np.zeros(tracks.count, np.int64)
+        for info, group in zip(infos, groups):
+            if info.get("model") != "failed":
+                counts += (start <= group[0]) & (end >= group[-1])
+        means = np.asarray(result.per_trajectory, np.float64)
+        scored = counts > 0
+        acc.add(ids[scored], means[scored] * counts[scored], counts[scored])
+
+    def _check_ed(self, ed: np.ndarray, first: int, stop: int) -> None:
+        expected = (stop - first,) + self.shape
+        if getattr(ed, "shape", None) != expected:
+            raise StageError(f"{self.name}: stage rigidity ({self.spec.stages['rigidity'].plugin}) returned ED of "
+                             f"shape {getattr(ed, 'shape', None)} for frames {first}..{stop - 1}, expected {expected}")
+
+    def _forget(self, records, pending, acc, g_next) -> None:
+        oldest = min(g_next, pending[0].t if pending else g_next)
+        for t in [t for t in records if t < oldest]:
+            del records[t]
+        if records:
+            acc.keep(np.unique(np.concatenate([records[t].ids for t in records])))
+
+    def _paint(self, item: FrameItem, records, acc: _Accumulator, direct) -> FrameItem:
+        if item.t in direct:
+            item.ed = direct.pop(item.t)
+        else:
+            def paint():
+                ed = acc.means(records[item.t].labels)
+                valid = ~np.isnan(ed)
+                if valid.all():
+                    return ed
+                if not valid.any():
+                    log.warning("%s: frame %s: no scored trajectory; using the median distance", self.name, item.stem)
+                return fill_from_neighbourhood(ed, valid, acc.median())
+
+            item.ed = self._timed("rigidity", paint)
+        return item
+
+    # -- the ED scale and the motion images -----------------------------------------------------
+    def _ed_scale(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
+        half = ED_WINDOW // 2
+        samples: dict[int, np.ndarray] = {}
+        waiting: deque[FrameItem] = deque()
+        for item in stream:
+            samples[item.t] = ed_frame_sample(item.ed)
+            waiting.append(item)
+            while waiting and waiting[0].t + half <= item.t:
+                yield self._scaled(waiting.popleft(), samples, half)
+        while waiting:
+            yield self._scaled(waiting.popleft(), samples, half)
+
+    @staticmethod
+    def _scaled(item: FrameItem, samples: dict, half: int) -> FrameItem:
+        window = [samples[t] for t in range(item.t - half, item.t + half + 1) if t in samples]
+        item.ed_scale = ed_window_scale(window)
+        for t in [t for t in samples if t < item.t - half + 1]:
+            del samples[t]
+        return item
+
+    def _motion_images(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
+        for item in stream:
+            if item.ed is not None:
+                # unsaturated: the motion net saturates the ED channel as its weights were trained (encode_ed)
+                ed = normalise_ed(item.ed[None], scales=np.array([item.ed_scale]), saturate=False)[0]
+            else:
+                ed = np.zeros(self.shape, np.float32)
+            motion = (item.motion_flow / FLOW_SCALE).transpose(2, 0, 1)
+            item.motion_image = np.concatenate([motion, ed[None]], axis=0).astype(np.float32)
+            yield item
+
+    # -- frame: batched per-frame stages --------------------------------------------------------
+    def _per_frame(self, kind: str, stream: Iterator[FrameItem], apply) -> Iterator[FrameItem]:
+        batch: list[FrameItem] = []
+        for item in stream:
+            batch.append(item)
+            if len(batch) == self.chunk:
+                apply(batch)
+                yield from batch
+                batch = []
+        if batch:
+            apply(batch)
+            yield from batch
+
+    def _predict(self, batch: list[FrameItem]) -> None:
+        images = np.stack([item.motion_image for item in batch])
+        saliency = self._timed("motion_net", lambda: self.stages["motion_net"].predict(images))
+        self._check_maps("motion_net", saliency, len(batch), self.shape)
+        for item, value in zip(batch, saliency):
+            item.saliency = value
+
+    def _features(self, batch: list[FrameItem]) -> None:
+        frames = np.stack([item.frame for item in batch])
+        features = self.pipeline.features_of(frames, Video(self.name, frames, [i.stem for i in batch], self.size),
+                                             self)
+        for item, value in zip(batch, features):
+            item.features = value
+
+    def _refine(self, batch: list[FrameItem]) -> None:
+        frames = np.stack([item.full if item.full is not None else item.frame for item in batch])
+        probability = np.stack([item.probability for item in batch])
+        masks = self._timed("refiner", lambda: self.stages["refiner"].refine(frames, probability))
+        self._check_maps("refiner", masks, len(batch), frames.shape[1:3])
+        for item, value in zip(batch, masks):
+            item.mask = np.asarray(value, np.uint8)
+
+    def _check_maps(self, kind: str, maps, count: int, shape) -> None:
+        expected = (count,) + tuple(shape)
+        if getattr(maps, "shape", None) != expected:
+            raise StageError(f"{self.name}: stage {kind} ({self.spec.stages[kind].plugin}) returned shape "
+                             f"{getattr(maps, 'shape', None)}, expected {expected}")
+
+    def _probability(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
+        for item in stream:
+            value = item.fused if item.fused is not None else item.saliency
+            if value is not None:
+                item.probability = resize_map(value, self.size).clip(0, 1)
+            yield item
+
+    # -- window: the fusion ---------------------------------------------------------------------
+    def _fusion(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
+        """Windows of the stage's ``window`` frames advancing by ``window - overlap``, the last one ending at the
+        last frame (as :func:`eponet.fusion.window_starts` places them), each run as soon as its frames exist and
+        the next window's start is known; centre stitching (:meth:`_owned`)."""
+        fusion = self.stages["fusion"]
+        window = getattr(fusion, "window", None)
+        overlap = int(getattr(fusion, "overlap", 0) or 0)
+        inputs: deque[FrameItem] = deque()
+        if window is None:  # the stage wants the whole video in one pass (memory grows with the video)
+            inputs.extend(stream)
+            self._fuse_window(inputs, 0, len(inputs), None, None)
+            yield from inputs
+            return
+        length, step = int(window), int(window) - overlap
+        start, previous = 0, None
+
+        pending: deque[FrameItem] = deque()  # yielded in order once fused
+        for item in stream:
+            inputs.append(item)
+            pending.append(item)
+            if item.t >= start + step + length - 1:  # the next window is a regular one at start + step
+                self._fuse_window(inputs, start, length, previous, start + step)
+                previous, start = start, start + step
+                while inputs and inputs[0].t < start:
+                    inputs.popleft()
+                while pending and pending[0].fused is not None:
+                    yield pending.popleft()
+        if not pending:
+            return
+        frames = pending[-1].t + 1
+        starts = [start] if frames > length else [0]
+        if frames > length and start + length < frames:
+            starts.append(frames - length)
+        for k, first in enumerate(starts):
+            nxt = starts[k + 1] if k + 1 < len(starts) else None
+            self._fuse_window(inputs, first, min(length, frames - first), previous, nxt,
+                              next_is_last=k + 2 == len(starts))
+            previous = first
+        yield from pending
+
+    def _fuse_window(self, inputs: deque, first: int, length: int, previous, nxt, *, next_is_last: bool = False) -> None:
+        base = inputs[0].t
+        window = [inputs[t - base] for t in range(first, first + length)]
+        features = np.stack([item.features for item in window])
+        saliency = np.stack([item.saliency for item in window])
+        fused = self._timed("fusion", lambda: self.stages["fusion"].fuse(features, saliency))
+        self._check_maps("fusion", fused, len(window), self.shape)
+        owned = self._owned(first, length, previous, nxt, next_is_last=next_is_last)
+        for item, value, mine in zip(window, fused, owned):
+            if mine:
+                item.fused = value
+
+    @staticmethod
+    def _owned(first: int, length: int, previous, nxt, *, next_is_last: bool) -> np.ndarray:
+        """Which frames of the window starting at ``first`` it owns: a frame belongs to the window in which it lies
+        farthest from an inner edge (an edge shared with a neighbour), the earlier window on ties (as
+        :func:`eponet.fusion.window_weights` with ``blend="centre"``)."""
+        far = length + 1
+        f = np.arange(first, first + length)
+
+        def weight(start, is_first, is_last):
+            left = f - start + 1 if not is_first else np.full(length, far)
+            right = start + length - f if not is_last else np.full(length, far)
+            w = np.minimum(left, right).astype(float)
+            w[(f < start) | (f >= start + length)] = -1.0
+            return w
+
+        mine = weight(first, first == 0, nxt is None)
+        owned = np.ones(length, bool)
+        if previous is not None:
+            owned &= mine > weight(previous, previous == 0, False)
+        if nxt is not None:
+            owned &= mine >= weight(nxt, False, next_is_last)
+        return owned
