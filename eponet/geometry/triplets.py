@@ -42,6 +42,7 @@ from .homography import (
     transfer_error_sq,
 )
 from .normalise import hartley_normalisation
+from .parallax import is_parallax, rigid_second_plane
 from .robust import gric, inlier_bound, robust_search, robust_sigma2
 from .trifocal import (
     fundamentals_from_trifocal,
@@ -57,7 +58,6 @@ DEGENERACY = ("parallax", "gric", "none")
 __all__ = [
     "DEGENERACY",
     "MIN_POINTS",
-    "border_ratio",
     "SIGMA_FLOOR_PX",
     "RobustSettings",
     "FittedModel",
@@ -76,15 +76,6 @@ MIN_POINTS = 20
 _REFIT_POINTS = 3000
 #: Lower bound of the noise estimate in pixels (exact synthetic flow would otherwise give sigma = 0).
 SIGMA_FLOOR_PX = 0.01
-#: ``degeneracy="parallax"``: the smallest fraction of the points a rigid second plane must hold to count as
-#: near rigid structure, the border band (fraction of the frame's shorter side), the border ratio and the
-#: speed ratio (its image motion over the dominant plane's) it must reach; displacements below the floor
-#: (pixels) count as the floor.
-PARALLAX_MIN_FRACTION = 0.1
-BORDER_BAND = 0.05
-PARALLAX_MIN_BORDER_RATIO = 0.5
-PARALLAX_MIN_SPEED_RATIO = 2.0
-SPEED_FLOOR_PX = 0.05
 
 
 @dataclass(frozen=True)
@@ -416,45 +407,6 @@ def _two_homographies_gric(e2h, points, sigma2, rng, settings: RobustSettings):
     return gric(np.minimum(e2h, e2), sigma2, r=2 * views, d=2, k=2 * k), e2
 
 
-def border_ratio(x: np.ndarray, member: np.ndarray, frame_size: tuple[int, int], band: float = BORDER_BAND) -> float:
-    """How much more often the ``member`` points (bool (N,)) lie near the frame border than all N points.
-
-    A point is near the border when it is within ``band * min(height, width)`` pixels of an edge. The ratio is
-    1 when the members are spread like the points, > 1 when they crowd the border, 0 when none is there.
-    """
-    h, w = frame_size
-    b = band * min(h, w)
-    near = (x[:, 0] < b) | (x[:, 0] > w - 1 - b) | (x[:, 1] < b) | (x[:, 1] > h - 1 - b)
-    base = near.mean()
-    if base == 0 or not member.any():
-        return 0.0
-    return float(near[member].mean() / base)
-
-
-def _rigid_second_plane(e2t, e2h, e2h2, x1, x3, sigma2, frame_size) -> dict:
-    """Plane + parallax evidence of a triplet (see :func:`estimate_triplet`, ``degeneracy="parallax"``).
-
-    The second plane is the set of points the epipolar model explains as rigid that the dominant homography
-    does not: outliers of the dominant homography, inliers of the second one and of the trifocal model.
-    Returns its fraction of the points (``plane``), its :func:`border_ratio` (``border``) and ``speed``: the
-    median displacement of its points from the first to the third frame over that of the dominant plane's
-    inliers.
-    """
-    dominant = e2h <= inlier_bound(sigma2, 4)
-    plane = ~dominant & (e2h2 <= inlier_bound(sigma2, 4)) & (e2t <= inlier_bound(sigma2, 3))
-    out = {"plane": round(float(plane.mean()), 4), "border": 0.0, "speed": 0.0}
-    if plane.sum() >= MIN_POINTS and dominant.sum() >= MIN_POINTS:
-        moved = np.hypot(*(x3 - x1).T)
-        out["border"] = round(border_ratio(x1, plane, frame_size), 3)
-        out["speed"] = round(float(np.median(moved[plane]) / max(np.median(moved[dominant]), SPEED_FLOOR_PX)), 3)
-    return out
-
-
-def _is_parallax(evidence: dict) -> bool:
-    return (evidence["plane"] >= PARALLAX_MIN_FRACTION and evidence["border"] >= PARALLAX_MIN_BORDER_RATIO
-            and evidence["speed"] >= PARALLAX_MIN_SPEED_RATIO)
-
-
 def _unmoved(threshold: float, *points: np.ndarray) -> np.ndarray:
     """Points that moved less than ``threshold`` pixels between every two frames (bool (n,))."""
     moved = np.zeros(len(points[0]))
@@ -565,9 +517,9 @@ def estimate_triplet(
         degenerate = min(scores["homography"], scores.get("two homographies", np.inf))
         kind = "trifocal" if scores["trifocal"] < degenerate else "homography"
         if degeneracy == "parallax" and kind == "homography" and two is not None and frame_size is not None:
-            parallax = _rigid_second_plane(fits["trifocal"][1], fits["homography"][1], two[1], x1, x3,
+            parallax = rigid_second_plane(fits["trifocal"][1], fits["homography"][1], two[1], x1, x3,
                                            gric_sigma2, frame_size)
-            if _is_parallax(parallax):
+            if is_parallax(parallax):
                 kind = "trifocal"
     elif degeneracy in DEGENERACY:
         kind = "trifocal" if "trifocal" in fits else next(iter(fits))
