@@ -19,7 +19,8 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
         --rigidity degeneracy=parallax border_prior=0.15     # the same networks on other ED
     python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--flow-cache DIR]
 
-Trained folds (``weights.pt`` present) are reused; ``<out>/kfold.json`` holds every figure.
+Trained folds (``weights.pt`` present) are reused; ``<out>/kfold.json`` holds every figure, and a later call
+with other ``--folds`` and the same settings adds its folds to it.
 """
 
 from __future__ import annotations
@@ -162,6 +163,12 @@ def main(argv=None) -> int:
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
+    previous = out / "kfold.json"
+    if previous.is_file():  # folds scored by an earlier call with the same settings are kept
+        earlier = json.loads(previous.read_text())
+        if {k: earlier.get(k) for k in meta} == meta:
+            per_sequence = {**{n: r for n, r in earlier["sequences"].items() if r["fold"] not in which},
+                            **per_sequence}
     text = report(per_sequence, measures, attributes(), tuple(args.attributes))
     print(text)
     (out / "kfold.json").write_text(json.dumps({"folds": split, **meta, "sequences": per_sequence}, indent=2))

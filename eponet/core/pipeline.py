@@ -24,6 +24,7 @@ from .inputs import SequenceSource, discover_sequences, iter_frames
 from .io import atomic_write_bytes
 from .outputs import SequenceOutputs, SequenceWriter, remove_partials
 from .progress import progress_enabled
+from .sanity import SequenceChecks
 from .spec import Spec
 from .stream import FrameItem, SequenceStream, video_digest
 from .types import FlowPair, Video
@@ -172,6 +173,7 @@ class Pipeline:
         log.info("%s: frames at %dx%d (input %dx%d)", source.name, shape[1], shape[0], size[1], size[0])
         stream = SequenceStream(self, source.name, size, tuple(int(v) for v in shape), digest=digest)
         writer = SequenceWriter(spec.output.dir, source.name, spec.output.save, size, shape)
+        checks = SequenceChecks(source.name)
         count = 0
         bar = _bar(source.name, source.count)
         try:
@@ -180,6 +182,7 @@ class Pipeline:
                 start = time.perf_counter()
                 writer.write(item)
                 write_time += time.perf_counter() - start
+                checks.observe(item.t, item.motion_flow, item.mask)
                 count += 1
                 if bar is not None:
                     bar.update(1)
@@ -199,6 +202,7 @@ class Pipeline:
             "seconds": round(time.perf_counter() - started, 3),
             "cached": stream.cached,
             "triplets": _summarise_triplets(stream.triplets),
+            **checks.finish(),
             "config": self.config_digest(),
         }
 
