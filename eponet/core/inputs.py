@@ -18,6 +18,10 @@ __all__ = ["SequenceSource", "discover_sequences", "iter_frames", "load_video", 
 
 log = logging.getLogger(__name__)
 
+#: A video whose decoder stops more than this many frames before the header's frame count gets a warning
+#: naming the frame (container headers are approximate; a corrupt frame mid-file ends decoding early).
+VIDEO_COUNT_SLACK = 2
+
 
 @dataclass
 class SequenceSource:
@@ -152,6 +156,10 @@ def _decoded(source: SequenceSource, max_frames: int | None):
         while max_frames is None or t < max_frames:
             ok, frame = capture.read()
             if not ok or frame is None:
+                announced = min(source.count, max_frames or source.count)
+                if t < announced - VIDEO_COUNT_SLACK:  # headers are approximate: a few frames short is normal
+                    log.warning("%s: the decoder stopped at frame %d of the %d the header announces (a corrupt or "
+                                "truncated file?); the sequence ends there", source.video, t, announced)
                 break
             yield f"{t:05d}", cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), f"{source.video} frame {t}"
             t += 1

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from eponet.core.errors import InputError
-from eponet.core.inputs import discover_sequences, load_video
+from eponet.core.inputs import discover_sequences, iter_frames, load_video
 from tests.conftest import textured_frames, write_frames
 
 
@@ -75,3 +75,24 @@ def test_bad_inputs_name_the_problem(tmp_path, case):
         pattern = r"a single image"
     with pytest.raises(InputError, match=pattern):
         discover_sequences(path)
+
+
+def test_a_video_cut_short_warns_naming_the_frame_it_stopped_at(tmp_path, caplog):
+    """A file truncated mid-way (or with a corrupt frame) ends decoding early; the header still announces
+    every frame. The sequence ends there with a warning naming the frame, not silently."""
+    import logging
+
+    whole = tmp_path / "whole.avi"
+    writer = cv2.VideoWriter(str(whole), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    for frame in textured_frames(20, (48, 64)):
+        writer.write(frame)
+    writer.release()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    with caplog.at_level(logging.WARNING):
+        assert sum(1 for _ in iter_frames(discover_sequences(whole)[0], scale=1.0)) == 20
+        assert caplog.text == ""
+        source = discover_sequences(cut)[0]
+        decoded = sum(1 for _ in iter_frames(source, scale=1.0))
+    assert source.count == 20 and 3 <= decoded < 18
+    assert f"cut.avi: the decoder stopped at frame {decoded} of the 20 the header announces" in caplog.text
