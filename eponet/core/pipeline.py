@@ -132,10 +132,8 @@ class Pipeline:
         hit = stream._cache_get("appearance", key)
         if hit is not None:
             return hit[0]["features"].astype(np.float32)
-        features = stream._timed("appearance", lambda: self.stages["appearance"].features(video).astype(np.float16))
-        if getattr(features, "ndim", 0) != 4 or features.shape[0] != len(frames):
-            raise StageError(f"{video.name}: stage appearance ({self.spec.stages['appearance'].plugin}) returned "
-                             f"features of shape {getattr(features, 'shape', None)}, expected ({len(frames)}, C, h, w)")
+        features = stream._call("appearance", lambda: self.stages["appearance"].features(video), frames=len(frames),
+                                shape=video.shape).astype(np.float16)
         self.cache.save("appearance", key, {"features": features})
         return features.astype(np.float32)
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from .cache import array_digest
 from .errors import EponetError, StageError
-from .graph import stage_kind
+from .graph import check_output, stage_kind
 from .imaging import fill_from_neighbourhood, resize_map
 from .motion import ED_TARGET, ED_WINDOW, FLOW_SCALE, ed_frame_sample, ed_window_scale, normalise_ed
 from .types import FlowPair, TrackFrame, Video, assemble_trajectories
@@ -219,6 +219,16 @@ class SequenceStream:
         self.timings[kind] = self.timings.get(kind, 0.0) + time.perf_counter() - start
         return value
 
+    def _call(self, kind: str, compute, *, frames: int | None, shape, trajectories: int | None = None):
+        """Run a method of stage ``kind`` (timed) and check what it returns against the kind's protocol
+        (:func:`eponet.core.graph.check_output`): a violation is a :class:`StageError` naming the plugin."""
+        value = self._timed(kind, compute)
+        problem = check_output(kind, self.spec.stages[kind].plugin, value, frames=frames, shape=shape,
+                               trajectories=trajectories)
+        if problem:
+            raise StageError(f"{self.name}: {problem}")
+        return value
+
     def _cache_get(self, kind: str, key: str):
         hit = self.pipeline.cache.load(kind, key)
         (self._hits if hit is not None else self._misses).add(kind)
@@ -252,16 +262,9 @@ class SequenceStream:
         if hit is not None:
             flow = FlowPair(hit[0]["forward"], hit[0]["backward"])
         else:
-            flow = self._timed("flow", lambda: self.stages["flow"].estimate(video))
+            flow = self._call("flow", lambda: self.stages["flow"].estimate(video), frames=len(items) - 1,
+                              shape=self.shape)
             self.pipeline.cache.save("flow", key, {"forward": flow.forward, "backward": flow.backward})
-        expected = (len(items) - 1,) + self.shape + (2,)
-        for direction, field_ in (("forward", flow.forward), ("backward", flow.backward)):
-            if field_.shape != expected:
-                raise StageError(f"{self.name}: {direction} flow of frames {stems[0]}..{stems[-1]} has shape "
-                                 f"{field_.shape}, expected {expected}")
-            if not np.isfinite(field_).all():
-                raise StageError(f"{self.name}: {direction} flow of frames {stems[0]}..{stems[-1]} has NaN or "
-                                 "infinite values")
         for k, item in enumerate(items[:-1]):
             item.forward, item.backward = flow.forward[k], flow.backward[k]
             item.motion_flow = item.forward
@@ -332,9 +335,10 @@ class SequenceStream:
                 continue
             if state is None:
                 state = self._timed("trajectories", lambda: builder.stream(self.shape))
-                records[0] = self._timed("trajectories", state.first)
+                records[0] = self._call("trajectories", state.first, frames=None, shape=self.shape)
             if item.forward is not None:
-                records[item.t + 1] = self._timed("trajectories", lambda: state.push(item.forward, item.backward))
+                records[item.t + 1] = self._call("trajectories", lambda: state.push(item.forward, item.backward),
+                                                 frames=None, shape=self.shape)
                 available = item.t + 1
                 while g_next + self.chunk - 1 + span <= available:
                     self._score_window(records, pending, g_next, g_next + self.chunk + span, rng, acc, direct,
@@ -345,11 +349,10 @@ class SequenceStream:
                 yield self._paint(pending.popleft(), records, acc, direct)
         frames = last_t + 1
         if whole:
-            tracks = self._timed("trajectories", lambda: builder.build(FlowPair(
-                np.stack([i.forward for i in whole[:-1]]), np.stack([i.backward for i in whole[:-1]]))))
-            result = self._timed("rigidity", lambda: rigidity.score(tracks, FlowPair(
-                np.stack([i.forward for i in whole[:-1]]), np.stack([i.backward for i in whole[:-1]])), rng))
-            self._check_ed(result.ed, 0, frames)
+            flow = FlowPair(np.stack([i.forward for i in whole[:-1]]), np.stack([i.backward for i in whole[:-1]]))
+            tracks = self._call("trajectories", lambda: builder.build(flow), frames=frames, shape=self.shape)
+            result = self._call("rigidity", lambda: rigidity.score(tracks, flow, rng), frames=frames, shape=self.shape,
+                                trajectories=tracks.count)
             self.triplets += list(result.triplets)
             for item in whole:
                 item.ed = result.ed[item.t]
@@ -367,8 +370,8 @@ class SequenceStream:
         base = pending[0].t
         pairs = [pending[t - base] for t in range(first, stop - 1)]  # frame stop - 1 may not have arrived yet
         flow = FlowPair(np.stack([i.forward for i in pairs]), np.stack([i.backward for i in pairs]))
-        result = self._timed("rigidity", lambda: rigidity.score(tracks, flow, rng))
-        self._check_ed(result.ed, first, stop)
+        result = self._call("rigidity", lambda: rigidity.score(tracks, flow, rng), frames=stop - first,
+                            shape=self.shape, trajectories=tracks.count)
         infos = [dict(info) for info in result.triplets]
         groups = [info.get("frames") for info in infos]
         for info in infos:
@@ -388,12 +391,6 @@ class SequenceStream:
         means = np.asarray(result.per_trajectory, np.float64)
         scored = counts > 0
         acc.add(ids[scored], means[scored] * counts[scored], counts[scored])
-
-    def _check_ed(self, ed: np.ndarray, first: int, stop: int) -> None:
-        expected = (stop - first,) + self.shape
-        if getattr(ed, "shape", None) != expected:
-            raise StageError(f"{self.name}: stage rigidity ({self.spec.stages['rigidity'].plugin}) returned ED of "
-                             f"shape {getattr(ed, 'shape', None)} for frames {first}..{stop - 1}, expected {expected}")
 
     def _forget(self, records, pending, acc, g_next) -> None:
         oldest = min(g_next, pending[0].t if pending else g_next)
@@ -465,8 +462,8 @@ class SequenceStream:
 
     def _predict(self, batch: list[FrameItem]) -> None:
         images = np.stack([item.motion_image for item in batch])
-        saliency = self._timed("motion_net", lambda: self.stages["motion_net"].predict(images))
-        self._check_maps("motion_net", saliency, len(batch), self.shape)
+        saliency = self._call("motion_net", lambda: self.stages["motion_net"].predict(images), frames=len(batch),
+                              shape=self.shape)
         for item, value in zip(batch, saliency):
             item.saliency = value
 
@@ -480,16 +477,10 @@ class SequenceStream:
     def _refine(self, batch: list[FrameItem]) -> None:
         frames = np.stack([item.full if item.full is not None else item.frame for item in batch])
         probability = np.stack([item.probability for item in batch])
-        masks = self._timed("refiner", lambda: self.stages["refiner"].refine(frames, probability))
-        self._check_maps("refiner", masks, len(batch), frames.shape[1:3])
+        masks = self._call("refiner", lambda: self.stages["refiner"].refine(frames, probability), frames=len(batch),
+                           shape=frames.shape[1:3])
         for item, value in zip(batch, masks):
-            item.mask = np.asarray(value, np.uint8)
-
-    def _check_maps(self, kind: str, maps, count: int, shape) -> None:
-        expected = (count,) + tuple(shape)
-        if getattr(maps, "shape", None) != expected:
-            raise StageError(f"{self.name}: stage {kind} ({self.spec.stages[kind].plugin}) returned shape "
-                             f"{getattr(maps, 'shape', None)}, expected {expected}")
+            item.mask = value
 
     def _probability(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
         for item in stream:
@@ -544,8 +535,8 @@ class SequenceStream:
         window = [inputs[t - base] for t in range(first, first + length)]
         features = np.stack([item.features for item in window])
         saliency = np.stack([item.saliency for item in window])
-        fused = self._timed("fusion", lambda: self.stages["fusion"].fuse(features, saliency))
-        self._check_maps("fusion", fused, len(window), self.shape)
+        fused = self._call("fusion", lambda: self.stages["fusion"].fuse(features, saliency), frames=len(window),
+                           shape=self.shape)
         owned = self._owned(first, length, previous, nxt, next_is_last=next_is_last)
         for item, value, mine in zip(window, fused, owned):
             if mine:
