@@ -52,7 +52,8 @@ def test_bad_input_exit_2_and_traceback_only_with_verbose(tmp_path):
     spec.write_text(f"preset: geometry\ninput: {{path: {empty}}}\nstages: {{trajectories: null, rigidity: null}}\n"
                     f"output: {{dir: {tmp_path / 'o'}, save: [flow]}}\n")
     result = _run("eponet.run", str(spec))
-    assert result.returncode == 2 and result.stderr.strip() == f"error: {empty}: empty folder, expected frames (.jpg, .jpeg ...)"
+    assert result.returncode == 2 and result.stderr.strip() == (f"error: {empty}: empty folder, expected image frames "
+                                                             "(.jpg, .jpeg, .png, .bmp, .ppm, .pgm, .tif, .tiff)")
     verbose = _run("eponet.run", str(spec), "-v")
     assert verbose.returncode == 2 and "Traceback" in verbose.stderr
 
@@ -69,3 +70,22 @@ def test_plugins_lists_kinds_parameters_and_presets():
     for text in ("flow:", "dis  [eponet", "preset: one of 'ultrafast', 'fast', 'medium', default 'medium'",
                  "refiner:", "densecrf", "presets:", "epo+:"):
         assert text in out
+
+
+def test_a_1x1_video_is_refused_before_anything_is_written(tmp_path):
+    """It used to pass validation, then fail naming a temporary overlay path, leaving an empty output folder."""
+    import cv2
+    import numpy as np
+
+    tiny = tmp_path / "tiny"
+    tiny.mkdir()
+    for t in range(3):
+        cv2.imwrite(str(tiny / f"{t:05d}.png"), np.full((1, 1, 3), 40 * t, np.uint8))
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"preset: epo\ninput: {{path: {tiny}}}\nstages: {{refiner: {{plugin: threshold}}}}\n"
+                    f"output: {{dir: {tmp_path / 'out'}, save: [masks, overlay]}}\n")
+    expected = f"error: {tiny / '00000.png'}: frames are 1x1 px; the pipeline needs frames of at least 16x16 px"
+    for command in ("eponet validate", "eponet.run"):
+        result = _run(*command.split(), str(spec))
+        assert result.returncode == 2 and result.stderr.strip() == expected, command
+    assert not (tmp_path / "out").exists()
