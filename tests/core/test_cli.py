@@ -89,3 +89,21 @@ def test_a_1x1_video_is_refused_before_anything_is_written(tmp_path):
         result = _run(*command.split(), str(spec))
         assert result.returncode == 2 and result.stderr.strip() == expected, command
     assert not (tmp_path / "out").exists()
+
+
+def test_validate_warns_about_the_memory_of_4000x3000_frames(tmp_path):
+    """Frames of 4000x3000 px ran to a 7.5 GB peak with no word."""
+    import cv2
+    import numpy as np
+
+    big = tmp_path / "big"
+    big.mkdir()
+    for t in range(25):
+        cv2.imwrite(str(big / f"{t:05d}.png"), np.zeros((3000, 4000, 3), np.uint8))
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"input: {{path: {big}}}\noutput: {{dir: {tmp_path / 'out'}}}\n")
+    result = _run("eponet", "validate", str(spec))
+    assert result.returncode == 0, result.stderr
+    assert result.stderr.splitlines() == [
+        "eponet: WARNING: big: frames of 4000x3000 px (processed at 2000x1500) need about 9.2 GiB in the run loop "
+        "(run.chunk 16, run.lag 30), above the 8 GiB warning bound; a lower input.scale, run.chunk or run.lag uses less"]
