@@ -103,11 +103,13 @@ def _print_summary(manifest: dict, out_dir: Path, quiet: bool) -> None:
 
 def _cmd_validate(args: argparse.Namespace) -> int:
     from .core.inputs import discover_sequences
+    from .core.pipeline import warn_about_memory
     from .core.spec import load_spec
 
     spec = load_spec(args.spec, args.overrides)
     sources = discover_sequences(spec.input.path, sequences=spec.input.sequences, resolution=spec.input.resolution,
                                  max_frames=spec.input.max_frames)
+    warn_about_memory(spec, sources)
     stages = ", ".join(f"{k}={c.plugin}" for k, c in spec.stages.items())
     print(f"{args.spec}: valid (preset {spec.preset}; {stages}; {len(sources)} sequence(s): "
           f"{', '.join(s.name for s in sources[:8])}{' ...' if len(sources) > 8 else ''})")

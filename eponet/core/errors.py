@@ -66,9 +66,19 @@ class StageError(EponetError):
 
 
 class MissingWeights(EponetError):
-    """Weights file missing, unreadable or failing its checksum."""
+    """Weights file missing, unreadable or failing its checksum; ``key`` is the stage parameter it is about
+    (``weights`` or ``sha256``)."""
 
     exit_code = 2
+
+    def __init__(self, message: str, *, key: str = "weights"):
+        super().__init__(message)
+        self.key = key
+
+    @property
+    def problem(self) -> str:
+        """The spec-validation line: ``<key>: <message>`` (the caller prefixes the stage's YAML path)."""
+        return f"{self.key}: {self}"
 
 
 class OutputError(EponetError):

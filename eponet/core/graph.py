@@ -21,6 +21,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from .protocols import (
     AppearanceBackbone,
     FlowEstimator,
@@ -30,6 +32,7 @@ from .protocols import (
     RigidityModel,
     TrajectoryBuilder,
 )
+from .types import FLOW_DTYPE, FlowPair, RigidityResult, TrackFrame, Trajectories, check_shape
 
 __all__ = [
     "CONTEXTS",
@@ -43,6 +46,7 @@ __all__ = [
     "producer_of",
     "missing_needs",
     "check_stage",
+    "check_output",
 ]
 
 #: Temporal contexts a stage can need, and what the run loop does for them:
@@ -169,3 +173,94 @@ def check_stage(kind: str, plugin: str, stage) -> str | None:
         return (f"stages.{kind}: plugin {plugin!r} does not implement the {kind} protocol: it has no method "
                 f"{node.method}() ({node.protocol.__name__})")
     return None
+
+
+# -- what each stage returns ----------------------------------------------------------------------
+def check_output(kind: str, plugin: str, value, *, frames: int | None, shape: tuple[int, int],
+                 trajectories: int | None = None) -> str | None:
+    """Why what a ``kind`` stage returned breaks its protocol (one line naming the kind, the plugin and what was
+    expected), or ``None``.
+
+    ``frames`` is the leading size the run loop expects (frames, or flow pairs), ``shape`` the ``(H, W)`` of the
+    maps, ``trajectories`` the rigidity's trajectory count. Cheap: shapes and dtypes, and a min/max only where the
+    protocol bounds the values (no copy of an array).
+
+    >>> check_output("refiner", "floaty", np.full((2, 4, 5), 0.99), frames=2, shape=(4, 5))
+    "stage refiner (plugin 'floaty') returned masks: expected dtype uint8, got float64"
+    """
+    problem = _OUTPUT_CHECKS[kind](value, frames, tuple(shape), trajectories)
+    return f"stage {kind} (plugin {plugin!r}) returned {problem}" if problem else None
+
+
+def _array(name: str, value, dims: list, dtype, *, low: float | None = None, high: float | None = None,
+           finite: bool = False) -> str | None:
+    """Why ``value`` is not a ``dtype`` array of layout ``dims`` (:func:`~eponet.core.types.check_shape`) with
+    values in ``[low, high]`` (and finite when ``finite``), or ``None``."""
+    if not isinstance(value, np.ndarray):
+        return f"{name} as a {type(value).__name__}, expected a numpy {np.dtype(dtype).name} array {dims}"
+    try:
+        check_shape(name, value, dims, dtype)
+    except ValueError as exc:
+        return str(exc)
+    if value.size == 0 or (low is None and high is None and not finite):
+        return None
+    lo, hi = value.min(), value.max()  # a NaN anywhere makes both NaN
+    if np.isnan(lo) or np.isnan(hi) or (finite and not (np.isfinite(lo) and np.isfinite(hi))):
+        return f"{name} with NaN or infinite values, expected finite values"
+    if (low is not None and lo < low) or (high is not None and hi > high):
+        bounds = f"[{low:g}, {high:g}]" if low is not None and high is not None else \
+            f">= {low:g}" if low is not None else f"<= {high:g}"
+        return f"{name} with values in [{lo:g}, {hi:g}], expected {bounds}"
+    return None
+
+
+def _type(value, expected: str) -> str:
+    return f"a {type(value).__name__}, expected {expected}"
+
+
+def _flow(value, frames, shape, _):
+    if not isinstance(value, FlowPair):
+        return _type(value, "a FlowPair")
+    return (_array("forward flow", value.forward, [frames, *shape, 2], FLOW_DTYPE, finite=True)
+            or _array("backward flow", value.backward, [frames, *shape, 2], FLOW_DTYPE, finite=True))
+
+
+def _trajectories(value, frames, shape, _):
+    if isinstance(value, TrackFrame):  # one frame of a TrajectoryStream
+        return (_array("ids", value.ids, ["N"], np.int32)
+                or _array("positions", value.positions, [len(value.ids), 2], np.float32)
+                or _array("labels", value.labels, list(shape), np.int32, low=0))
+    if not isinstance(value, Trajectories):
+        return _type(value, "Trajectories (build) or a TrackFrame (a stream's first / push)")
+    return (_array("start", value.start, ["T"], np.int32)
+            or _array("length", value.length, [len(value.start)], np.int32)
+            or _array("offsets", value.offsets, [len(value.start) + 1], np.int64)
+            or _array("positions", value.positions, ["N", 2], np.float32)
+            or _array("labels", value.labels, [frames, *shape], np.int32, low=0))
+
+
+def _rigidity(value, frames, shape, trajectories):
+    if not isinstance(value, RigidityResult):
+        return _type(value, "a RigidityResult")
+    if value.per_trajectory is not None:
+        problem = _array("per_trajectory", value.per_trajectory, [trajectories], np.float32)
+        if problem:
+            return problem
+    return _array("ed", value.ed, [frames, *shape], np.float32, low=0.0, finite=True)
+
+
+def _maps(name: str, dtype, low, high):
+    """The check of a per-frame map output: ``dtype`` ``(F, H, W)`` with values in ``[low, high]``."""
+    return lambda value, frames, shape, _: _array(name, value, [frames, *shape], dtype, low=low, high=high)
+
+
+_OUTPUT_CHECKS = {
+    "flow": _flow,
+    "trajectories": _trajectories,
+    "rigidity": _rigidity,
+    "motion_net": _maps("saliency", np.float32, 0.0, 1.0),
+    "appearance": lambda value, frames, shape, _: _array("features", value, [frames, "C", "h", "w"], np.float32),
+    "fusion": _maps("fused", np.float32, 0.0, 1.0),
+    "refiner": _maps("masks", np.uint8, None, 1),
+}
+assert set(_OUTPUT_CHECKS) == set(KINDS), "every stage kind has an output check"

@@ -12,7 +12,7 @@ import numpy as np
 from .errors import InputError
 from .io import IMAGE_SUFFIXES, VIDEO_SUFFIXES, list_images, natural_key, read_image
 from .registry import nearest
-from .types import MIN_FRAMES, Video
+from .types import MIN_FRAMES, MIN_SIDE, Video
 
 __all__ = ["SequenceSource", "discover_sequences", "iter_frames", "load_video", "processing_size"]
 
@@ -41,8 +41,14 @@ class SequenceSource:
 
 
 def processing_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
-    """Processing ``(H, W)`` for input ``size`` ``(H, W)`` and ``scale`` (at least 16 px a side)."""
-    return max(16, int(round(size[0] * scale))), max(16, int(round(size[1] * scale)))
+    """Processing ``(H, W)`` for input ``size`` ``(H, W)`` and ``scale`` (at least ``MIN_SIDE`` px a side)."""
+    return max(MIN_SIDE, int(round(size[0] * scale))), max(MIN_SIDE, int(round(size[1] * scale)))
+
+
+def _check_size(where, size: tuple[int, int]) -> None:
+    if min(size) < MIN_SIDE:
+        raise InputError(f"{where}: frames are {size[1]}x{size[0]} px; the pipeline needs frames of at least "
+                         f"{MIN_SIDE}x{MIN_SIDE} px")
 
 
 def discover_sequences(
@@ -82,7 +88,12 @@ def _check_frames(folder: Path, name: str, max_frames: int | None) -> SequenceSo
 
     files = list_images(folder)
     if not files:
-        raise InputError(f"{folder}: empty folder, expected frames ({', '.join(IMAGE_SUFFIXES[:2])} ...)")
+        accepted = ", ".join(IMAGE_SUFFIXES)
+        others = sorted((p.name for p in folder.iterdir() if not p.name.startswith(".")), key=natural_key)
+        if not others:
+            raise InputError(f"{folder}: empty folder, expected image frames ({accepted})")
+        listing = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+        raise InputError(f"{folder}: no image frames (it holds {listing}); accepted extensions: {accepted}")
     files = files[:max_frames] if max_frames else files
     if len(files) < MIN_FRAMES:
         raise InputError(f"{folder}: {len(files)} frame(s), the pipeline needs at least {MIN_FRAMES} (triplets)")
@@ -95,6 +106,7 @@ def _check_frames(folder: Path, name: str, max_frames: int | None) -> SequenceSo
             raise InputError(f"{file}: cannot read image (not an image or corrupt)") from None
         if size is None:
             size = (height, width)
+            _check_size(file, size)
         elif (height, width) != size:
             raise InputError(f"{file}: frame is {width}x{height} but the first frame {files[0].name} is {size[1]}x{size[0]}")
     return SequenceSource(name=name, files=files, size=size, count=len(files))
@@ -116,6 +128,7 @@ def _check_video(path: Path, max_frames: int | None) -> SequenceSource:
         count = min(count, max_frames) if count > 0 else max_frames
     if 0 < count < MIN_FRAMES:
         raise InputError(f"{path}: {count} frame(s), the pipeline needs at least {MIN_FRAMES} (triplets)")
+    _check_size(path, frame.shape[:2])
     return SequenceSource(name=path.stem, video=path, size=frame.shape[:2], count=count)
 
 

@@ -26,6 +26,7 @@ __all__ = [
     "read_flo",
     "write_flo",
     "atomic_path",
+    "honour_umask",
     "atomic_write_bytes",
     "save_npy",
 ]
@@ -164,6 +165,11 @@ _UMASK = os.umask(0)
 os.umask(_UMASK)
 
 
+def honour_umask(path: str | Path) -> None:
+    """Give a file or folder made by :mod:`tempfile` (0600 / 0700) the permissions the umask gives new ones."""
+    os.chmod(path, (0o777 if os.path.isdir(path) else 0o666) & ~_UMASK)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[str]:
     """Yield a temporary file name beside ``path``; on success rename it onto ``path``, else remove it."""
@@ -172,7 +178,7 @@ def atomic_path(path: str | Path) -> Iterator[str]:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp" + path.suffix, dir=path.parent)
         os.close(fd)
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600 files; outputs get the usual permissions
+        honour_umask(tmp)
     except OSError as exc:
         raise OutputError(f"{path.parent}: cannot write output ({exc.strerror or exc})") from None
     try:

@@ -14,7 +14,7 @@ import numpy as np
 from .errors import OutputError
 from .imaging import flow_to_color, heat_map, overlay_mask, resize_flow, resize_map
 from .motion import ED_TARGET
-from .io import atomic_path, save_npy, write_flo, write_mask_png
+from .io import atomic_path, honour_umask, save_npy, write_flo, write_mask_png
 from .progress import track
 from .types import FlowPair, Video
 
@@ -54,6 +54,7 @@ class SequenceWriter:
         try:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             self.folder = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".partial", dir=self.out_dir))
+            honour_umask(self.folder)  # it becomes the sequence's folder
         except OSError as exc:
             raise OutputError(f"output.dir: cannot write to {self.out_dir} ({exc.strerror or exc})") from None
         self._overlay = None

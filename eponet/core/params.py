@@ -89,6 +89,10 @@ class Param:
             if not isinstance(value, bool):
                 return bad
         elif self.type in ("str", "path", "weights"):
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                # e.g. an all-digit sha256 left unquoted: YAML made it a number (all zeros: 0)
+                return (f"expected {self.describe()}, got the number {value!r} (YAML reads unquoted digits as a "
+                        "number; quote the value)")
             if not isinstance(value, str) or (self.type != "str" and not value):
                 return bad
         elif self.type == "choice":

@@ -20,18 +20,22 @@ import numpy as np
 from .cache import Cache, code_fingerprint, content_key
 from .errors import EponetError, OutputError, StageError
 from .graph import GRAPH, check_stage, stage_kind
-from .inputs import SequenceSource, discover_sequences, iter_frames
+from .inputs import SequenceSource, discover_sequences, iter_frames, processing_size
 from .io import atomic_write_bytes
 from .outputs import SequenceOutputs, SequenceWriter, remove_partials
 from .progress import progress_enabled
 from .sanity import SequenceChecks
 from .spec import Spec
-from .stream import FrameItem, SequenceStream, video_digest
+from .stream import FrameItem, SequenceStream, memory_estimate, video_digest
 from .types import FlowPair, Video
 
-__all__ = ["Pipeline", "run_spec", "library_versions"]
+__all__ = ["Pipeline", "run_spec", "library_versions", "memory_warning", "MEMORY_WARNING_BYTES"]
 
 log = logging.getLogger(__name__)
+
+#: A sequence whose estimated run-loop peak (:func:`eponet.core.stream.memory_estimate`) is above this is warned
+#: about before it runs (README, "run:"); it still runs.
+MEMORY_WARNING_BYTES = 8 * 2**30
 
 _LIBRARIES = ("numpy", "scipy", "torch", "opencv-python-headless", "pluggy", "pydensecrf2", "scikit-image", "PyYAML", "pillow")
 
@@ -133,10 +137,8 @@ class Pipeline:
         hit = stream._cache_get("appearance", key)
         if hit is not None:
             return hit[0]["features"].astype(np.float32)
-        features = stream._timed("appearance", lambda: self.stages["appearance"].features(video).astype(np.float16))
-        if getattr(features, "ndim", 0) != 4 or features.shape[0] != len(frames):
-            raise StageError(f"{video.name}: stage appearance ({self.spec.stages['appearance'].plugin}) returned "
-                             f"features of shape {getattr(features, 'shape', None)}, expected ({len(frames)}, C, h, w)")
+        features = stream._call("appearance", lambda: self.stages["appearance"].features(video), frames=len(frames),
+                                shape=video.shape).astype(np.float16)
         self.cache.save("appearance", key, {"features": features})
         return features.astype(np.float32)
 
@@ -153,7 +155,7 @@ class Pipeline:
         ``run.json`` entry."""
         spec = self.spec
         started = time.perf_counter()
-        needs_full = "refiner" in self.stages or bool({"panels", "overlay"} & set(spec.output.save))
+        needs_full = _needs_full_frames(spec)
         digest = None
         if self.cache.enabled:  # one decoding pass more, for cache keys that depend on the whole video
             digest = video_digest(frame for _, frame, _ in iter_frames(source, scale=spec.input.scale,
@@ -246,6 +248,7 @@ class Pipeline:
                 todo.append(source)
         workers = _workers(spec.run.workers, len(todo))
         manifest["workers"] = workers
+        warn_about_memory(spec, todo)
         order = {s.name: k for k, s in enumerate(sources)}
 
         def finished(name: str, entry: dict) -> None:
@@ -270,6 +273,33 @@ class Pipeline:
         """sha256 of every weights file the stages use (a stage's ``sha256`` attribute: one or a list)."""
         return {kind: getattr(stage, "sha256") for kind, stage in self.stages.items()
                 if isinstance(getattr(stage, "sha256", None), (str, list))}
+
+
+def _needs_full_frames(spec: Spec) -> bool:
+    """Whether the loop keeps the input-size frames (for the refiner or a picture output)."""
+    return "refiner" in spec.stages or bool({"panels", "overlay"} & set(spec.output.save))
+
+
+def memory_warning(spec: Spec, source: SequenceSource) -> str | None:
+    """One line when the run loop's estimated peak memory for ``source`` is above :data:`MEMORY_WARNING_BYTES`."""
+    if source.size is None:
+        return None
+    size = tuple(source.size)
+    shape = processing_size(size, spec.input.scale)
+    estimate = memory_estimate(size, shape, chunk=spec.run.chunk, lag=spec.run.lag, frames=source.count,
+                               full_frames=_needs_full_frames(spec))
+    if estimate <= MEMORY_WARNING_BYTES:
+        return None
+    return (f"{source.name}: frames of {size[1]}x{size[0]} px (processed at {shape[1]}x{shape[0]}) need about "
+            f"{estimate / 2**30:.1f} GiB in the run loop (run.chunk {spec.run.chunk}, run.lag {spec.run.lag}), above "
+            f"the {MEMORY_WARNING_BYTES / 2**30:g} GiB warning bound; a lower input.scale, run.chunk or run.lag uses less")
+
+
+def warn_about_memory(spec: Spec, sources: list[SequenceSource]) -> None:
+    for source in sources:
+        warning = memory_warning(spec, source)
+        if warning:
+            log.warning(warning)
 
 
 def _bar(name: str, total: int):

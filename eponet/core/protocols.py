@@ -2,7 +2,8 @@
 
 Conventions (flow direction, x/y order, dtypes) are in :mod:`eponet.core.types`. Every stage is built by its
 plugin's factory from validated keyword parameters; stochastic stages take a seeded
-``numpy.random.Generator`` so that a run is reproducible.
+``numpy.random.Generator`` so that a run is reproducible. What each method returns is checked against the shapes,
+dtypes and ranges stated here as it returns (:func:`eponet.core.graph.check_output`).
 """
 
 from __future__ import annotations

@@ -138,6 +138,11 @@ class Registry:
         where = f"{path}: " if path else ""
         listing = f"available: {', '.join(available)}" if available else f"no {kind} plugin is installed"
         failed = f"; plugin packages that failed to load: {', '.join(f'{p} ({r})' for p, r in self.failed.items())}" if self.failed else ""
+        elsewhere = [k for k in KINDS if (k, name) in self.stages]
+        if elsewhere:  # e.g. refiner: {plugin: dis}
+            kinds = " and ".join(_a(k) for k in elsewhere)
+            raise PluginNotFound(f"{where}{name!r} is {kinds} plugin, not {_a(kind)} plugin; {kind} plugins: "
+                                 f"{', '.join(available) or 'none'}{failed}")
         raise PluginNotFound(f"{where}unknown {kind} plugin {name!r}{_hint(nearest(name, available))}; {listing}{failed}")
 
     def preset(self, name: str, *, path: str = "preset") -> dict:
@@ -161,6 +166,10 @@ class Registry:
             for kind, config in (preset.get("stages") or {}).items():
                 stages[kind] = dict(config) if config is not None else None
         return {k: v for k, v in stages.items() if v is not None}
+
+
+def _a(word: str) -> str:
+    return f"{'an' if word[0] in 'aeiou' else 'a'} {word}"
 
 
 def _hint(name: str | None) -> str:

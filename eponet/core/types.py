@@ -18,6 +18,7 @@ import numpy as np
 __all__ = [
     "FLOW_DTYPE",
     "MIN_FRAMES",
+    "MIN_SIDE",
     "Video",
     "FlowPair",
     "Trajectories",
@@ -30,6 +31,9 @@ __all__ = [
 FLOW_DTYPE = np.float32
 #: The fewest frames any pipeline can run on: rigidity works on triplets of frames.
 MIN_FRAMES = 3
+#: The smallest frame side in pixels, of the input frames and of the processing size: smaller frames cannot be
+#: encoded (e.g. the overlay video) and carry too little to segment.
+MIN_SIDE = 16
 
 
 def check_shape(name: str, array: np.ndarray, dims: list[str | int], dtype=None) -> None:

@@ -44,7 +44,9 @@ def sha256_of(path: str | Path) -> str:
 def resolve_weights(name_or_path: str, *, sha256: str | None = None, kind: str | None = None) -> tuple[Path, str]:
     """The verified file behind a built-in name or a path, and its sha256.
 
-    A built-in name is checked against the catalogue's checksum; a path against ``sha256`` when given.
+    A built-in name is checked against the catalogue's checksum, and ``sha256``, when given, must be that
+    checksum (a spec that pins the digest a run recorded keeps meaning that file); a path is checked against
+    ``sha256`` when given.
     Raises :class:`MissingWeights` (one line, naming the file) when the file is missing, unreadable or fails
     its checksum.
     """
@@ -53,6 +55,9 @@ def resolve_weights(name_or_path: str, *, sha256: str | None = None, kind: str |
         entry = catalogue[name_or_path]
         if kind is not None and entry.kind != kind:
             raise MissingWeights(f"weights {name_or_path!r} are for a {entry.kind} stage, not {kind}")
+        if sha256 is not None and sha256.lower() != entry.sha256:
+            raise MissingWeights(f"built-in weights {name_or_path!r}: expected sha256 {entry.sha256} (the catalogue's), "
+                                 f"given {sha256}", key="sha256")
         path, expected = entry.file, entry.sha256
     else:
         path, expected = Path(name_or_path).expanduser(), sha256

@@ -96,3 +96,26 @@ def test_a_video_cut_short_warns_naming_the_frame_it_stopped_at(tmp_path, caplog
         decoded = sum(1 for _ in iter_frames(source, scale=1.0))
     assert source.count == 20 and 3 <= decoded < 18
     assert f"cut.avi: the decoder stopped at frame {decoded} of the 20 the header announces" in caplog.text
+
+
+def test_a_folder_without_image_frames_says_so_and_what_is_accepted(tmp_path):
+    for name in ("b.txt", "a.txt", "notes10.txt", "notes2.txt"):
+        (tmp_path / name).write_text("x")
+    with pytest.raises(InputError) as caught:
+        discover_sequences(tmp_path)
+    assert str(caught.value) == (f"{tmp_path}: no image frames (it holds a.txt, b.txt, notes2.txt and 1 more); "
+                                 "accepted extensions: .jpg, .jpeg, .png, .bmp, .ppm, .pgm, .tif, .tiff")
+
+
+def test_frames_smaller_than_the_minimum_are_refused_naming_the_input(tmp_path):
+    paths = write_frames(tmp_path / "tiny", np.zeros((3, 1, 1, 3), np.uint8))
+    with pytest.raises(InputError) as caught:
+        discover_sequences(tmp_path / "tiny")
+    assert str(caught.value) == f"{paths[0]}: frames are 1x1 px; the pipeline needs frames of at least 16x16 px"
+    video = tmp_path / "small.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (32, 8))
+    for frame in textured_frames(3, size=(8, 32)):
+        writer.write(frame)
+    writer.release()
+    with pytest.raises(InputError, match=r"small.avi: frames are 32x8 px; the pipeline needs frames of at least 16x16"):
+        discover_sequences(video)

@@ -64,3 +64,20 @@ def test_many_accepts_one_value_or_a_non_empty_list_of_them():
         assert problems == [f"s.weights: expected a built-in weights name or a file or a list of them, got {bad!r}"]
     with pytest.raises(ValueError, match="many is for"):
         Param("n", "int", 1, "a count", many=True)
+
+
+def test_an_unquoted_all_digit_string_is_reported_as_the_number_yaml_made_of_it(tmp_path):
+    """An all-zero sha256 left unquoted is the YAML int 0: say so, and to quote it (it read "got 0")."""
+    from eponet.core.errors import SpecError
+    from eponet.core.spec import load_spec
+
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(f"input: {{path: {tmp_path}}}\noutput: {{dir: {tmp_path / 'out'}}}\n"
+                    f"stages: {{motion_net: {{weights: epo-davis, sha256: {'0' * 64}}}}}\n")
+    with pytest.raises(SpecError) as caught:
+        load_spec(spec)
+    assert caught.value.problems == ["stages.motion_net.sha256: expected a string or a list of them or null, got the "
+                                     "number 0 (YAML reads unquoted digits as a number; quote the value)"]
+    _, problems = validate_params({"name": 12345}, (Param("name", "str", "a", "a name"),), "x")
+    assert problems == ["x.name: expected a string, got the number 12345 (YAML reads unquoted digits as a number; "
+                        "quote the value)"]

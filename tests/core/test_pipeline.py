@@ -100,3 +100,16 @@ def test_motion_images_carry_unsaturated_ed_for_the_network_to_encode(tmp_path):
     np.testing.assert_allclose(ed, normalise_ed(result.ed, saturate=False), rtol=1e-6)
     # the patch in frame 2 stays well above 1, where the paper's encoding would clip it to the background's top
     assert ed[2, 21:25, 21:25].min() > 1.5 and np.median(ed) < 0.5
+
+
+def test_large_frames_are_warned_about_with_the_estimated_memory(frames_dir, tmp_path):
+    from eponet.core.inputs import SequenceSource
+    from eponet.core.pipeline import memory_warning
+
+    spec = parse_spec({"preset": "epo", "input": {"path": str(frames_dir)}, "output": {"dir": str(tmp_path / "out")}})
+    big = SequenceSource(name="big", files=[], size=(3000, 4000), count=200)
+    assert memory_warning(spec, big) == (
+        "big: frames of 4000x3000 px (processed at 2000x1500) need about 28.0 GiB in the run loop (run.chunk 16, "
+        "run.lag 30), above the 8 GiB warning bound; a lower input.scale, run.chunk or run.lag uses less")
+    assert memory_warning(spec, SequenceSource(name="hd", files=[], size=(1080, 1920), count=200)) is None
+    assert memory_warning(spec, SequenceSource(name="short", files=[], size=(3000, 4000), count=10)) is None

@@ -63,6 +63,17 @@ def test_unknown_name_lists_available_and_suggests():
     assert "available: dis, farneback, flo" in message
 
 
+def test_a_plugin_of_another_kind_is_named_as_such():
+    """``refiner: {plugin: dis}`` said only "unknown refiner plugin"; the registry knows every kind's names."""
+    with pytest.raises(PluginNotFound) as info:
+        get_registry().get("refiner", "dis", path="stages.refiner.plugin")
+    assert str(info.value) == ("stages.refiner.plugin: 'dis' is a flow plugin, not a refiner plugin; refiner plugins: "
+                               "densecrf, threshold")
+    with pytest.raises(PluginNotFound, match=r"'none' is an appearance plugin, not a motion_net plugin; motion_net "
+                                             r"plugins: epo_unet$"):
+        get_registry().get("motion_net", "none")
+
+
 def test_unknown_kind():
     with pytest.raises(PluginNotFound, match=r"unknown stage kind 'refine' \(did you mean 'refiner'\?\)"):
         get_registry().get("refine", "densecrf")

@@ -73,7 +73,7 @@ def _check(params: dict) -> list[str]:
     try:
         resolve_weights(params["weights"], sha256=params.get("sha256"), kind="fusion")
     except MissingWeights as exc:
-        problems.append(f"weights: {exc}")
+        problems.append(exc.problem)
     window = params.get("window")
     if window is not None and params["overlap"] >= window:
         problems.append(f"overlap: expected fewer frames than window ({window}), got {params['overlap']}")

@@ -109,7 +109,7 @@ def _check(params: dict) -> list[str]:
     except SpecError as exc:
         return exc.problems
     except MissingWeights as exc:
-        return [f"weights: {exc}"]
+        return [exc.problem]
     return []
 
 

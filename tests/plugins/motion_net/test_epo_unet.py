@@ -98,6 +98,25 @@ def test_a_spec_lists_weights_relative_to_its_folder(tmp_path):
         parse_spec(doc, base_dir=tmp_path)
 
 
+@pytest.mark.parametrize("kind, name", [("motion_net", "epo-davis"), ("fusion", "epo-plus-davis")])
+def test_a_wrong_sha256_with_a_builtin_name_is_one_spec_line(tmp_path, kind, name):
+    """README: ``sha256`` is checked before loading, also with a built-in name (it was silently ignored)."""
+    from eponet.core.spec import parse_spec
+    from eponet.weights import builtin_weights
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    doc = {"preset": "epo+", "input": {"path": str(frames)}, "output": {"dir": str(tmp_path / "out")},
+           "stages": {kind: {"weights": name, "sha256": "ab" * 32}}}
+    with pytest.raises(SpecError) as caught:
+        parse_spec(doc)
+    expected = builtin_weights()[name].sha256
+    assert caught.value.problems == [f"stages.{kind}.sha256: built-in weights {name!r}: expected sha256 {expected} "
+                                     f"(the catalogue's), given {'ab' * 32}"]
+    doc["stages"][kind]["sha256"] = expected
+    assert parse_spec(doc).stages[kind].params["sha256"] == expected
+
+
 def test_checksum_mismatch_and_missing_file_are_clear_errors(tmp_path):
     path = _save(tmp_path / "w.pt", depth=2, widths=(4, 8), head_channels=4)
     with pytest.raises(MissingWeights, match="checksum mismatch"):
