@@ -69,7 +69,12 @@ class RigidityModel(Protocol):
         3 and 1) with one generator drawn in order over the windows. When ``per_trajectory`` is given and each
         ``triplets`` record has ``frames`` (window-local) and ``model`` (``"failed"``: not scored), a
         trajectory's mean is accumulated over all of its groups across windows; otherwise each window's
-        ``ed`` is used as it is."""
+        ``ed`` is used as it is.
+
+        A stage that learns from earlier groups (guided sampling) may also have ``new_history()``: the loop
+        then calls it once per video and passes the object to every window as ``score(..., history=h,
+        track_ids=ids)`` (``ids``: int64 ``(T,)``, the window's trajectories' global ids, ascending), and calls
+        ``h.keep(alive_ids)`` when trajectories end, so that windows see what a whole-video call would."""
 
 
 @runtime_checkable

@@ -353,6 +353,7 @@ class SequenceStream:
         records: dict[int, TrackFrame] = {}
         pending: deque[FrameItem] = deque()
         acc = _Accumulator()
+        history = rigidity.new_history() if hasattr(rigidity, "new_history") else None
         direct: dict[int, np.ndarray] = {}
         g_next = 0  # first frame group not yet scored
         last_t = -1
@@ -371,9 +372,9 @@ class SequenceStream:
                 available = item.t + 1
                 while g_next + self.chunk - 1 + span <= available:
                     self._score_window(records, pending, g_next, g_next + self.chunk + span, rng, acc, direct,
-                                       owned=self.chunk)
+                                       owned=self.chunk, history=history)
                     g_next += self.chunk
-                    self._forget(records, pending, acc, g_next)
+                    self._forget(records, pending, acc, g_next, history)
             while pending and pending[0].t + self.lag < g_next and pending[0].t + 1 in records:
                 yield self._paint(pending.popleft(), records, acc, direct)
         frames = last_t + 1
@@ -388,18 +389,21 @@ class SequenceStream:
             yield from whole
             return
         if frames - 1 - span >= g_next or g_next == 0:
-            self._score_window(records, pending, g_next, frames, rng, acc, direct, owned=frames - g_next)
+            self._score_window(records, pending, g_next, frames, rng, acc, direct, owned=frames - g_next,
+                               history=history)
         while pending:
             yield self._paint(pending.popleft(), records, acc, direct)
 
-    def _score_window(self, records, pending, first, stop, rng, acc, direct, *, owned) -> None:
-        """Score frames ``first .. stop - 1`` (groups starting at ``first .. first + owned - 1``)."""
+    def _score_window(self, records, pending, first, stop, rng, acc, direct, *, owned, history=None) -> None:
+        """Score frames ``first .. stop - 1`` (groups starting at ``first .. first + owned - 1``), passing the
+        stage's ``history`` (see :class:`~eponet.core.protocols.RigidityModel`) when it keeps one."""
         rigidity = self.stages["rigidity"]
         tracks, ids = self._timed("trajectories", lambda: assemble_trajectories([records[t] for t in range(first, stop)]))
         base = pending[0].t
         pairs = [pending[t - base] for t in range(first, stop - 1)]  # frame stop - 1 may not have arrived yet
         flow = FlowPair(np.stack([i.forward for i in pairs]), np.stack([i.backward for i in pairs]))
-        result = self._call("rigidity", lambda: rigidity.score(tracks, flow, rng), frames=stop - first,
+        memory = {} if history is None else {"history": history, "track_ids": ids}
+        result = self._call("rigidity", lambda: rigidity.score(tracks, flow, rng, **memory), frames=stop - first,
                             shape=self.shape, trajectories=tracks.count)
         infos = [dict(info) for info in result.triplets]
         groups = [info.get("frames") for info in infos]
@@ -421,12 +425,15 @@ class SequenceStream:
         scored = counts > 0
         acc.add(ids[scored], means[scored] * counts[scored], counts[scored])
 
-    def _forget(self, records, pending, acc, g_next) -> None:
+    def _forget(self, records, pending, acc, g_next, history=None) -> None:
         oldest = min(g_next, pending[0].t if pending else g_next)
         for t in [t for t in records if t < oldest]:
             del records[t]
         if records:
-            acc.keep(np.unique(np.concatenate([records[t].ids for t in records])))
+            alive = np.unique(np.concatenate([records[t].ids for t in records]))
+            acc.keep(alive)
+            if history is not None:
+                history.keep(alive)
 
     def _paint(self, item: FrameItem, records, acc: _Accumulator, direct) -> FrameItem:
         if item.t in direct:

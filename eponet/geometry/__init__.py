@@ -37,7 +37,7 @@ from .homography import (
 from .normalise import hartley_normalisation
 from .rigidity import GRIC_PARAMS, GROUP_PARAMS, ROBUST_PARAMS, STATIC_PARAMS, RigidityStage
 from .robust import draw_samples, gric, inlier_bound, ransac_trial_count, robust_search, robust_sigma2
-from .scoring import check_rigidity_inputs, ed_maps_from_scores, frame_groups, score_frame_groups
+from .scoring import SamplingHistory, check_rigidity_inputs, ed_maps_from_scores, frame_groups, score_frame_groups
 from .trajectories import (
     alive_in_frames,
     build_dense_trajectories,
@@ -138,6 +138,7 @@ __all__ = [
     "check_rigidity_inputs",
     "frame_groups",
     "score_frame_groups",
+    "SamplingHistory",
     "ed_maps_from_scores",
     # the rigidity stages' common skeleton
     "RigidityStage",

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..core.params import Param
 from ..core.types import FlowPair, RigidityResult, Trajectories
-from .scoring import check_rigidity_inputs, ed_maps_from_scores, frame_groups, score_frame_groups
+from .scoring import SamplingHistory, check_rigidity_inputs, ed_maps_from_scores, frame_groups, score_frame_groups
 from .triplets import FittedModel, RobustSettings
 
 __all__ = ["RigidityStage", "GROUP_PARAMS", "STATIC_PARAMS", "ROBUST_PARAMS", "GRIC_PARAMS"]
@@ -128,8 +128,16 @@ class RigidityStage(ABC):
         """The fitted model of one frame group's point tracks (a subclass's estimator); ``frame_size`` is the
         frames' ``(height, width)`` in pixels."""
 
-    def score(self, trajectories: Trajectories, flow: FlowPair | None, rng: np.random.Generator) -> RigidityResult:
+    def new_history(self) -> SamplingHistory:
+        """An empty memory of guided sampling, for a stream to pass to every window of one video."""
+        return SamplingHistory()
+
+    def score(self, trajectories: Trajectories, flow: FlowPair | None, rng: np.random.Generator, *,
+              history: SamplingHistory | None = None, track_ids: np.ndarray | None = None) -> RigidityResult:
         """Per-pixel distance maps float32 ``(F, H, W)`` in pixels, per-trajectory means and per-group records.
+
+        A stream passes ``history`` and ``track_ids`` (the trajectories' global ids) to carry guided
+        sampling's memory across its windows (:func:`~eponet.geometry.scoring.score_frame_groups`).
 
         Raises :class:`~eponet.core.errors.InputError` for fewer than 3 frames or flow that does not match
         the trajectories.
@@ -147,7 +155,7 @@ class RigidityStage(ABC):
 
         sums, counts, infos = score_frame_groups(
             trajectories, groups, estimate, rng, max_points=self.max_points, sampling=self.sampling,
-            border=self.border_prior,
+            border=self.border_prior, history=history, track_ids=track_ids,
         )
         per_trajectory, ed = ed_maps_from_scores(trajectories, sums, counts)
         return RigidityResult(ed=ed, per_trajectory=per_trajectory, triplets=infos)

@@ -8,6 +8,7 @@ group, averages per trajectory, and paints the result into ``(F, H, W)`` maps.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -30,6 +31,7 @@ __all__ = [
     "ed_maps_from_scores",
     "border_weight",
     "BORDER_PRIOR",
+    "SamplingHistory",
 ]
 
 log = logging.getLogger(__name__)
@@ -76,6 +78,46 @@ def border_weight(x: np.ndarray, frame_size: tuple[int, int], band: float = BORD
     return np.clip(1.0 - d / band, BORDER_INTERIOR_WEIGHT, 1.0)
 
 
+@dataclass
+class SamplingHistory:
+    """What guided sampling knows from frame groups scored in earlier windows of a stream, by the stream's
+    global trajectory id (ascending): the summed distance of each trajectory from the most general model of
+    every group it was scored in (``sums``, pixels), the number of those groups (``counts``), and the latest
+    scale ``s`` (pixels; ``None`` before any model). With one history carried from window to window, a
+    streamed run samples each group as a whole-video run does (:func:`score_frame_groups`)."""
+
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    sums: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    scale: float | None = None
+
+    def lookup(self, track_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(sums, counts)`` of ``track_ids`` (any order), zero for trajectories never scored."""
+        track_ids = np.asarray(track_ids, np.int64)
+        if not len(self.ids):
+            return np.zeros(len(track_ids)), np.zeros(len(track_ids), np.int64)
+        at = np.clip(np.searchsorted(self.ids, track_ids), 0, len(self.ids) - 1)
+        found = self.ids[at] == track_ids
+        return np.where(found, self.sums[at], 0.0), np.where(found, self.counts[at], 0)
+
+    def store(self, track_ids: np.ndarray, sums: np.ndarray, counts: np.ndarray) -> None:
+        """Set the totals of ``track_ids`` (replacing what was there); entries with ``counts == 0`` are left
+        out."""
+        track_ids = np.asarray(track_ids, np.int64)
+        kept = np.asarray(counts) > 0
+        others = ~np.isin(self.ids, track_ids)
+        ids = np.concatenate([self.ids[others], track_ids[kept]])
+        order = np.argsort(ids, kind="stable")
+        self.ids = ids[order]
+        self.sums = np.concatenate([self.sums[others], np.asarray(sums, np.float64)[kept]])[order]
+        self.counts = np.concatenate([self.counts[others], np.asarray(counts, np.int64)[kept]])[order]
+
+    def keep(self, alive: np.ndarray) -> None:
+        """Forget every trajectory not in ``alive`` (those that ended: no later group can sample them)."""
+        mask = np.isin(self.ids, alive)
+        self.ids, self.sums, self.counts = self.ids[mask], self.sums[mask], self.counts[mask]
+
+
 def score_frame_groups(
     trajectories: Trajectories,
     groups: list[tuple[int, ...]],
@@ -85,6 +127,8 @@ def score_frame_groups(
     max_points: int,
     sampling: str = "guided",
     border: float = BORDER_PRIOR,
+    history: SamplingHistory | None = None,
+    track_ids: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, list[dict]]:
     """Fit one model per frame group and accumulate every trajectory's distances.
 
@@ -107,6 +151,11 @@ def score_frame_groups(
     to 0.948, mallard-water 0.23 -> 0.57, motocross-bumps 0.87 -> 0.84). Weighted sampling without
     replacement uses Efraimidis-Spirakis keys ``u^(1/w)``.
 
+    A stream scores a video window by window; ``history`` (a :class:`SamplingHistory`, updated in place) and
+    ``track_ids`` (int (T,): each trajectory's global id) carry guided sampling's ``D_j`` and ``s`` from one
+    window to the next, so the windows' groups are sampled as the whole video's are. The returned sums and
+    counts cover this call's groups only.
+
     Returns
     -------
     sums : float64 (T,)
@@ -127,7 +176,15 @@ def score_frame_groups(
     if sampling not in ("guided", "uniform"):
         raise ValueError(f"sampling must be 'guided' or 'uniform', got {sampling!r}")
     scale = None
-    prior_sums = np.zeros(trajectories.count) if sampling == "guided" else None
+    prior_sums = prior_counts = None
+    if sampling == "guided":
+        if history is not None:
+            if track_ids is None or len(track_ids) != trajectories.count:
+                raise ValueError("a sampling history needs track_ids: one global id per trajectory")
+            prior_sums, prior_counts = history.lookup(track_ids)
+            scale = history.scale
+        else:
+            prior_sums, prior_counts = np.zeros(trajectories.count), np.zeros(trajectories.count, np.int64)
     for frames in groups:
         ids = alive_in_frames(trajectories, frames[0], frames[-1], ends, births_ordered=ordered)
         pts = trajectory_positions(trajectories, ids, tuple(frames))  # float32: scored in float32
@@ -135,7 +192,7 @@ def score_frame_groups(
             if sampling == "guided" and (scale is not None or frame_size is not None):
                 weight = np.ones(len(ids))
                 if scale is not None:
-                    c = counts[ids]
+                    c = prior_counts[ids]
                     with np.errstate(invalid="ignore", divide="ignore"):
                         prior = np.where(c > 0, prior_sums[ids] / np.maximum(c, 1), 0.0)
                     weight = 1.0 / (1.0 + (prior / scale) ** 2)
@@ -167,9 +224,13 @@ def score_frame_groups(
             general = model.general or model
             dg = d if general is model else general.distance(*pts)
             prior_sums[ids] += np.where(np.isfinite(dg), dg, 1e6)
+            prior_counts[ids] += 1
             if general.inliers is not None and general.inliers.any():
                 typical = float(np.median(general.distance(*sample)[general.inliers]))
                 scale = max(3.0 * typical, 1.0) if np.isfinite(typical) else scale
+    if history is not None and prior_sums is not None:
+        history.store(track_ids, prior_sums, prior_counts)
+        history.scale = scale
     return sums, counts, infos
 
 

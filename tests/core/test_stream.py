@@ -73,6 +73,22 @@ def test_chunks_carry_trajectories_and_means_across_windows(tmp_path):
     assert ed.max() > 1.0  # the patch is there: not a trivially zero map
 
 
+def test_guided_sampling_carries_its_memory_across_windows(tmp_path, monkeypatch):
+    """Guided sampling weighs each trajectory by its distances in earlier groups: with the stage's history
+    carried from window to window, chunks of 4 frames sample and fit every group as the whole video does.
+    Without it (each window starting afresh) the maps differ: the test can tell."""
+    from eponet.geometry.rigidity import RigidityStage
+
+    folder = _clip(tmp_path / "clip")
+    spec = _spec(folder, tmp_path / "out", rigidity={"sampling": "guided", "max_points": 200},
+                 run={"chunk": 4, "lag": 14})
+    video = load_video(discover_sequences(folder)[0], scale=1.0)
+    _, ed, _ = _whole_video(spec, video)
+    np.testing.assert_allclose(Pipeline(spec).process(video).ed, ed, rtol=1e-5, atol=1e-6)
+    monkeypatch.delattr(RigidityStage, "new_history")  # a stage without a memory
+    assert not np.allclose(Pipeline(spec).process(video).ed, ed, rtol=1e-5, atol=1e-6)
+
+
 def test_a_short_lag_changes_only_what_it_cuts_off(tmp_path):
     """With lag 2, a frame is painted before the trajectories covering it have ended; the patch still stands out
     and the maps stay close to the whole video's."""
