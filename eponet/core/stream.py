@@ -19,7 +19,8 @@ Each stage of :data:`eponet.core.graph.GRAPH` is driven by its temporal context:
 
 With ``run.chunk`` and ``run.lag`` at least the video's length the loop computes exactly what a whole-video
 composition of the same stages computes (``tests/core/test_stream.py``); shorter settings differ only in what
-the lag cuts off and in the rigidity's guided sampling, whose history restarts at each window.
+the lag cuts off (a rigidity stage with ``new_history()``, as the built-in ones, carries guided sampling's
+memory from window to window, so its groups are sampled as in the whole video).
 
 Memory: about ``chunk + lag + 30`` frames of flow, trajectory records and ED maps at the processing size, plus
 ``chunk`` full-size frames (and the fusion's window) at a time; :func:`memory_estimate` puts a number on it.
