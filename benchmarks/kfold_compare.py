@@ -18,6 +18,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from kfold import ATTRIBUTES, attributes  # noqa: E402
 
+#: Measures where a lower value is better (DAVIS temporal stability).
+LOWER_IS_BETTER = ("T",)
+
 
 def compare(a: dict[str, dict], b: dict[str, dict], measure: str, attrs: dict[str, list[str]],
             wanted: tuple[str, ...] = ATTRIBUTES) -> str:
@@ -36,8 +39,9 @@ def compare(a: dict[str, dict], b: dict[str, dict], measure: str, attrs: dict[st
     if names:
         lines.append(row("mean", names))
         lines.append(row("worst", names, np.min))
-        better = sum(b[n][measure] > a[n][measure] + 0.005 for n in names)
-        worse = sum(b[n][measure] < a[n][measure] - 0.005 for n in names)
+        sign = -1 if measure in LOWER_IS_BETTER else 1
+        better = sum(sign * (b[n][measure] - a[n][measure]) > 0.005 for n in names)
+        worse = sum(sign * (b[n][measure] - a[n][measure]) < -0.005 for n in names)
         lines.append(f"{'B better / worse':<18}{'':>5}{better:>8}{worse:>8}   (by more than 0.005)")
         for attr in wanted:
             members = [n for n in names if attr in attrs.get(n, [])]
