@@ -1,17 +1,18 @@
-"""The ``eponet`` command line: run, validate, plugins, evaluate, make-rbsf, train."""
+"""The ``eponet`` command line: run, validate, plugins, cache, evaluate, make-rbsf, train."""
 
 from __future__ import annotations
 
 import argparse
 import logging
+import re
 import sys
 import traceback
 from pathlib import Path
 from typing import Callable
 
-from .core.errors import EponetError, SpecError
+from .core.errors import EponetError, SpecError, UsageError
 
-__all__ = ["main", "run_main", "guarded"]
+__all__ = ["main", "run_main", "guarded", "parse_size", "parse_duration"]
 
 log = logging.getLogger("eponet")
 
@@ -76,7 +77,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec, args.overrides)
     cache_dir = Path(args.cache_dir) if args.cache_dir else spec.cache_dir
     cache = Cache(cache_dir, enabled=spec.cache_enabled and not args.no_cache)
-    manifest = Pipeline(spec, cache=cache).run()
+    invocation = {"overrides": list(args.overrides), "no_cache": args.no_cache, "cache_dir": args.cache_dir}
+    manifest = Pipeline(spec, cache=cache).run(invocation=invocation)
     _print_summary(manifest, spec.output.dir, quiet=args.quiet)
     return 0
 
@@ -148,6 +150,84 @@ def _cmd_plugins(args: argparse.Namespace) -> int:
     return 0
 
 
+_SIZE_UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
+_DURATION_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400, "w": 7 * 86400}
+
+
+def parse_size(option: str, text: str) -> int:
+    """``500M``, ``2G``, ``1.5T`` or a number of bytes (binary units: ``2G`` is 2 GiB)."""
+    match = re.fullmatch(r"(\d+(?:\.\d+)?)\s*([KMGT]?)(?:i?B)?", text.strip(), re.IGNORECASE)
+    if not match:
+        raise UsageError(f"{option}: expected a size such as 500M or 2G, got {text!r}")
+    return int(float(match[1]) * _SIZE_UNITS[match[2].upper()])
+
+
+def parse_duration(option: str, text: str) -> float:
+    """``30m``, ``12h``, ``7d``, ``2w`` or a number of seconds."""
+    match = re.fullmatch(r"(\d+(?:\.\d+)?)\s*([smhdw]?)", text.strip())
+    if not match:
+        raise UsageError(f"{option}: expected a duration such as 12h or 7d, got {text!r}")
+    return float(match[1]) * _DURATION_UNITS[match[2] or "s"]
+
+
+def _format_size(size: float) -> str:
+    if size < 1024:
+        return f"{size:.0f} B"
+    for unit in ("KiB", "MiB", "GiB", "TiB"):
+        size /= 1024
+        if size < 1024 or unit == "TiB":
+            return f"{size:.1f} {unit}"
+
+
+def _format_time(timestamp: float) -> str:
+    from datetime import datetime, timezone
+
+    return datetime.fromtimestamp(timestamp, timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+
+
+def _by_stage(entries) -> str:
+    counts: dict[str, list[int]] = {}
+    for entry in entries:
+        counts.setdefault(entry.stage, [0, 0])
+        counts[entry.stage][0] += 1
+        counts[entry.stage][1] += entry.size
+    return ", ".join(f"{stage} {n} ({_format_size(size)})" for stage, (n, size) in sorted(counts.items()))
+
+
+def _open_cache(args: argparse.Namespace):
+    from .core.cache import Cache
+    from .core.spec import default_cache_dir
+
+    return Cache(Path(args.cache_dir) if args.cache_dir else default_cache_dir())
+
+
+def _cmd_cache_info(args: argparse.Namespace) -> int:
+    cache = _open_cache(args)
+    entries = cache.entries()
+    if not entries:
+        print(f"cache: {cache.root} (empty)")
+        return 0
+    print(f"cache: {cache.root}")
+    print(f"size: {_format_size(sum(e.size for e in entries))} in {len(entries)} entries")
+    print(f"entries per stage: {_by_stage(entries)}")
+    print(f"oldest: {_format_time(entries[0].mtime)}; newest: {_format_time(entries[-1].mtime)} (last written or read)")
+    return 0
+
+
+def _cmd_cache_prune(args: argparse.Namespace) -> int:
+    older_than = parse_duration("--older-than", args.older_than) if args.older_than is not None else None
+    max_size = parse_size("--max-size", args.max_size) if args.max_size is not None else None
+    cache = _open_cache(args)
+    removed = cache.prune(older_than=older_than, max_size=max_size)
+    left = cache.entries()
+    freed = f"freed {_format_size(sum(e.size for e in removed))}: {len(removed)} entries"
+    if removed:
+        freed += f" ({_by_stage(removed)})"
+    if not args.quiet:
+        print(f"{freed}; {_format_size(sum(e.size for e in left))} in {len(left)} entries left in {cache.root}")
+    return 0
+
+
 def _forward(module: str) -> Callable[[list[str]], int]:
     def call(argv: list[str]) -> int:
         import importlib
@@ -174,6 +254,16 @@ def build_parser() -> argparse.ArgumentParser:
     plugins.add_argument("kind", nargs="?", help="only this stage kind")
     _add_common(plugins)
     plugins.set_defaults(handler=_cmd_plugins)
+    cache = sub.add_parser("cache", help="report on or prune the cache of intermediate results")
+    actions = cache.add_subparsers(dest="action", required=True, metavar="ACTION")
+    info = actions.add_parser("info", help="cache folder, total size, entries per stage kind, oldest and newest")
+    prune = actions.add_parser("prune", help="remove the least recently used entries")
+    prune.add_argument("--older-than", metavar="AGE", help="remove entries not used for AGE (e.g. 12h, 7d)")
+    prune.add_argument("--max-size", metavar="SIZE", help="then remove the oldest until at most SIZE (e.g. 500M, 2G)")
+    for parser_, handler in ((info, _cmd_cache_info), (prune, _cmd_cache_prune)):
+        parser_.add_argument("--cache-dir", help="cache location (default: $EPONET_CACHE or ~/.cache/eponet)")
+        _add_common(parser_)
+        parser_.set_defaults(handler=handler)
     for name, text in (("evaluate", "score masks with the DAVIS J / F / T protocol (see eponet evaluate -h)"),
                        ("make-rbsf", "generate RBSF-style synthetic videos with exact ground truth"),
                        ("train", "train a network from a training spec (see eponet train -h)")):

@@ -7,15 +7,22 @@ import importlib.util
 import hashlib
 import json
 import logging
+import os
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .io import atomic_path
 
-__all__ = ["Cache", "content_key", "array_digest", "code_fingerprint"]
+__all__ = ["Cache", "CacheEntry", "content_key", "array_digest", "code_fingerprint", "STALE_TEMP_SECONDS"]
 
 log = logging.getLogger(__name__)
+
+#: A cache temp file (``.<key>.*.tmp.npz``) older than this was left by a killed writer and is removed when a cache
+#: opens or is pruned; a younger one may belong to a live writer and is left alone.
+STALE_TEMP_SECONDS = 3600
 
 
 def array_digest(array: np.ndarray) -> str:
@@ -58,14 +65,27 @@ def content_key(**parts) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
 
 
+@dataclass(frozen=True)
+class CacheEntry:
+    """One stored entry: its stage kind, file, size in bytes and mtime (the time it was last written or read)."""
+
+    stage: str
+    path: Path
+    size: int
+    mtime: float
+
+
 class Cache:
     """Arrays stored as ``<root>/<stage>/<key[:2]>/<key>.npz``, written atomically; a corrupt entry is a
-    miss. With ``enabled=False`` nothing is read or written."""
+    miss. With ``enabled=False`` nothing is read or written. A hit refreshes the entry's mtime, so that
+    :meth:`prune` removes the least recently used entries first."""
 
     def __init__(self, root: str | Path, enabled: bool = True):
         self.root = Path(root)
         self.enabled = enabled
         self.hits: list[str] = []
+        if enabled:
+            self.remove_stale_temps()
 
     def _path(self, stage: str, key: str) -> Path:
         return self.root / stage / key[:2] / f"{key}.npz"
@@ -84,6 +104,10 @@ class Cache:
             log.warning("ignoring unreadable cache entry %s (%s)", path, exc)
             return None
         self.hits.append(stage)
+        try:
+            os.utime(path)
+        except OSError:  # a read-only cache still serves hits
+            pass
         return arrays, meta
 
     def exists(self, stage: str, key: str) -> bool:
@@ -100,3 +124,56 @@ class Cache:
                     np.savez(handle, __meta__=np.array(json.dumps(meta or {})), **arrays)
         except Exception as exc:  # the cache is an optimisation: a full disk must not fail the run
             log.warning("could not write cache entry %s (%s)", path, exc)
+
+    # -- maintenance (``eponet cache info | prune``) ----------------------------------------------
+    def entries(self) -> list[CacheEntry]:
+        """Every stored entry, oldest first (temp files of writers are not entries)."""
+        found = []
+        for path in self.root.glob("*/*/*.npz"):
+            if path.name.startswith("."):
+                continue
+            try:
+                stat = path.stat()
+            except OSError:  # removed meanwhile
+                continue
+            found.append(CacheEntry(path.parent.parent.name, path, stat.st_size, stat.st_mtime))
+        return sorted(found, key=lambda entry: (entry.mtime, str(entry.path)))
+
+    def remove_stale_temps(self, max_age: float = STALE_TEMP_SECONDS) -> int:
+        """Remove temp files older than ``max_age`` seconds (left by killed writers); returns the bytes freed."""
+        freed = 0
+        now = time.time()
+        for path in self.root.glob("*/*/.*.tmp.npz"):
+            try:
+                stat = path.stat()
+                if now - stat.st_mtime > max_age:
+                    path.unlink()
+                    freed += stat.st_size
+            except OSError:
+                continue
+        return freed
+
+    def prune(self, *, older_than: float | None = None, max_size: int | None = None) -> list[CacheEntry]:
+        """Remove entries not used for ``older_than`` seconds, then the least recently used ones until the
+        entries take at most ``max_size`` bytes, and stale temp files; returns the entries removed."""
+        self.remove_stale_temps()
+        entries = self.entries()
+        now = time.time()
+        cut = sum(1 for e in entries if older_than is not None and now - e.mtime > older_than)  # oldest first
+        total = sum(e.size for e in entries[cut:])
+        while max_size is not None and cut < len(entries) and total > max_size:
+            total -= entries[cut].size
+            cut += 1
+        doomed = entries[:cut]
+        removed = []
+        for entry in doomed:
+            try:
+                entry.path.unlink()
+                removed.append(entry)
+            except OSError as exc:
+                log.warning("could not remove cache entry %s (%s)", entry.path, exc)
+            try:
+                entry.path.parent.rmdir()  # the key's folder, once empty
+            except OSError:
+                pass
+        return removed

@@ -12,6 +12,7 @@ __all__ = [
     "StageError",
     "MissingWeights",
     "OutputError",
+    "UsageError",
 ]
 
 
@@ -83,5 +84,11 @@ class MissingWeights(EponetError):
 
 class OutputError(EponetError):
     """The output folder cannot be written."""
+
+    exit_code = 2
+
+
+class UsageError(EponetError):
+    """A bad command-line value (names the option, what it expects and what it got)."""
 
     exit_code = 2

@@ -118,11 +118,14 @@ class SequenceWriter:
 
 
 def remove_partials(out_dir: Path) -> None:
-    """Remove what runs that were killed left half-written (``.<name>.*.partial`` folders)."""
+    """Remove what runs that were killed left half-written: ``.<name>.*.partial`` folders and temp files of the
+    run record (``.run.*.tmp.json``)."""
     out_dir = Path(out_dir)
     if out_dir.is_dir():
         for path in out_dir.glob(".*.partial"):
             shutil.rmtree(path, ignore_errors=True)
+        for path in out_dir.glob(".run.*.tmp.json"):
+            path.unlink(missing_ok=True)
 
 
 def write_sequence(result: SequenceOutputs, out_dir: Path, save: tuple[str, ...]) -> Path:

@@ -216,18 +216,24 @@ class Pipeline:
         return hashlib.sha256(json.dumps(document, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
     # -- a whole run ---------------------------------------------------------------------------
-    def run(self) -> dict:
+    def run(self, *, invocation: dict | None = None) -> dict:
         """Process every input sequence, write outputs and ``run.json`` (rewritten after every finished
-        sequence); sequences a previous run of the same spec finished are skipped. Returns the manifest."""
+        sequence); sequences a previous run of the same spec finished are skipped. ``invocation`` (the command
+        line's ``--set`` overrides and cache options) is recorded as given. The records of earlier runs into the
+        same ``output.dir`` move into the new record's ``runs`` list, oldest first. Returns the manifest."""
         spec = self.spec
         started = time.time()
         sources = discover_sequences(spec.input.path, sequences=spec.input.sequences,
                                      resolution=spec.input.resolution, max_frames=spec.input.max_frames)
         remove_partials(spec.output.dir)
+        previous = _read_record(spec.output.dir / "run.json")
+        runs = previous.pop("runs", [])
+        history = (runs if isinstance(runs, list) else []) + ([previous] if previous else [])
         manifest = {
             "eponet": _dist_version("eponet"),
             "spec_file": spec.file,
-            "spec": spec.document,
+            "spec": {**spec.document, "cache": {"enabled": self.cache.enabled, "dir": str(self.cache.root)}},
+            "invocation": invocation or {},
             "seed": spec.seed,
             "plugins": {kind: {"plugin": c.plugin, "package": c.spec.package, "version": c.spec.version,
                                "params": c.params} for kind, c in spec.stages.items()},
@@ -235,9 +241,10 @@ class Pipeline:
             "libraries": library_versions(),
             "started": datetime.fromtimestamp(started, timezone.utc).isoformat(timespec="seconds"),
             "sequences": {},
+            "runs": history,
         }
         config = self.config_digest()
-        earlier = _read_manifest(spec.output.dir / "run.json")
+        earlier = previous.get("sequences") if isinstance(previous.get("sequences"), dict) else {}
         todo = []
         for source in sources:
             entry = earlier.get(source.name)
@@ -317,11 +324,23 @@ def _workers(setting, sequences: int) -> int:
     return max(1, min(int(setting), max(sequences, 1)))
 
 
-def _read_manifest(path: Path) -> dict:
-    try:
-        return dict(json.loads(path.read_text()).get("sequences", {}))
-    except (OSError, ValueError, AttributeError):
+def _read_record(path: Path) -> dict:
+    """An earlier run's ``run.json``; one that cannot be read is kept aside as ``run-unreadable-<time>.json``."""
+    if not path.is_file():
         return {}
+    try:
+        record = json.loads(path.read_text())
+        if isinstance(record, dict):
+            return record
+    except (OSError, ValueError):
+        pass
+    aside = path.with_name(f"run-unreadable-{int(time.time())}.json")
+    log.warning("%s: unreadable run record, kept as %s", path, aside.name)
+    try:
+        os.replace(path, aside)
+    except OSError:
+        pass
+    return {}
 
 
 def _write_manifest(path: Path, manifest: dict) -> None:

@@ -50,3 +50,48 @@ def test_code_fingerprint_covers_the_stage_module_and_algorithm_code_only(monkey
     assert "training" not in cache_module.ALGORITHM_CODE and "evaluation" not in cache_module.ALGORITHM_CODE
     assert "geometry" in cache_module.ALGORITHM_CODE
     assert "nets" not in cache_module.ALGORITHM_CODE and "fusion" not in cache_module.ALGORITHM_CODE
+
+
+def _entry(cache, stage, key, size, age):
+    """Store an entry of about ``size`` bytes whose mtime is ``age`` seconds ago."""
+    import os
+    import time
+
+    cache.save(stage, key, {"x": np.zeros(size, dtype=np.uint8)})
+    path = cache._path(stage, key)
+    os.utime(path, (time.time() - age, time.time() - age))
+    return path
+
+
+def test_stale_temp_files_are_removed_when_the_cache_opens_but_a_live_writers_are_kept(tmp_path):
+    import os
+    import time
+
+    folder = tmp_path / "flow" / "ab"
+    folder.mkdir(parents=True)
+    stale, live = folder / ".abab.x1.tmp.npz", folder / ".abab.x2.tmp.npz"
+    stale.write_bytes(b"half")
+    live.write_bytes(b"half")
+    two_hours_ago = time.time() - 7200
+    os.utime(stale, (two_hours_ago, two_hours_ago))
+    Cache(tmp_path, enabled=False)
+    assert stale.exists()  # a disabled cache touches nothing
+    Cache(tmp_path)
+    assert not stale.exists() and live.exists()
+
+
+def test_prune_removes_old_entries_then_the_least_recently_used_down_to_a_size(tmp_path):
+    cache = Cache(tmp_path)
+    old = _entry(cache, "flow", "aa" * 32, 1000, age=10 * 86400)
+    a = _entry(cache, "rigidity", "bb" * 32, 1000, age=3 * 86400)
+    b = _entry(cache, "flow", "cc" * 32, 1000, age=2 * 86400)
+    c = _entry(cache, "appearance", "dd" * 32, 1000, age=86400)
+    assert [e.path for e in cache.entries()] == [old, a, b, c]
+    assert {e.stage for e in cache.entries()} == {"flow", "rigidity", "appearance"}
+    removed = cache.prune(older_than=7 * 86400)
+    assert [e.path for e in removed] == [old] and not old.exists() and not old.parent.exists()
+    assert cache.load("rigidity", "bb" * 32) is not None  # a hit makes it the most recently used
+    size = sum(e.size for e in cache.entries())
+    removed = cache.prune(max_size=size - 1)
+    assert [e.path for e in removed] == [b] and a.exists() and c.exists()
+    assert cache.prune(max_size=0) and cache.entries() == []

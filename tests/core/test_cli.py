@@ -107,3 +107,62 @@ def test_validate_warns_about_the_memory_of_4000x3000_frames(tmp_path):
     assert result.stderr.splitlines() == [
         "eponet: WARNING: big: frames of 4000x3000 px (processed at 2000x1500) need about 9.2 GiB in the run loop "
         "(run.chunk 16, run.lag 30), above the 8 GiB warning bound; a lower input.scale, run.chunk or run.lag uses less"]
+
+
+def test_cache_info_and_prune_report_sizes_and_stages(tmp_path, capsys):
+    import os
+    import time
+
+    import numpy as np
+
+    from eponet.cli import main
+    from eponet.core.cache import Cache
+
+    cache = Cache(tmp_path / "cache")
+    for k, (stage, age) in enumerate([("flow", 10 * 86400), ("flow", 60), ("rigidity", 30)]):
+        cache.save(stage, f"{k}" * 64, {"x": np.zeros(2**20, dtype=np.uint8)})
+        os.utime(cache._path(stage, f"{k}" * 64), (time.time() - age,) * 2)
+    assert main(["cache", "info", "--cache-dir", str(tmp_path / "cache")]) == 0
+    out = capsys.readouterr().out
+    assert f"cache: {tmp_path / 'cache'}" in out and "in 3 entries" in out
+    assert "flow 2 (2.0 MiB), rigidity 1 (1.0 MiB)" in out and "oldest: " in out and "newest: " in out
+    assert main(["cache", "prune", "--older-than", "7d", "--cache-dir", str(tmp_path / "cache")]) == 0
+    assert capsys.readouterr().out.startswith("freed 1.0 MiB: 1 entries (flow 1 (1.0 MiB)); 2.0 MiB in 2 entries left")
+    assert main(["cache", "prune", "--max-size", "1.5M", "--cache-dir", str(tmp_path / "cache")]) == 0
+    assert capsys.readouterr().out.startswith("freed 1.0 MiB: 1 entries (flow 1 (1.0 MiB)); 1.0 MiB in 1 entries")
+    assert [e.stage for e in cache.entries()] == ["rigidity"]
+
+
+@pytest.mark.parametrize("option, value, expected", [
+    ("--max-size", "2Q", "error: --max-size: expected a size such as 500M or 2G, got '2Q'"),
+    ("--older-than", "a week", "error: --older-than: expected a duration such as 12h or 7d, got 'a week'"),
+])
+def test_cache_prune_bad_values_are_one_line_and_exit_2(tmp_path, capsys, option, value, expected):
+    from eponet.cli import main
+
+    assert main(["cache", "prune", option, value, "--cache-dir", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip() == expected
+
+
+def test_sizes_and_durations_parse():
+    from eponet.cli import parse_duration, parse_size
+
+    assert parse_size("-", "500M") == 500 * 2**20 and parse_size("-", "2g") == 2 * 2**30 and parse_size("-", "10") == 10
+    assert parse_size("-", "1.5GiB") == int(1.5 * 2**30)
+    assert parse_duration("-", "7d") == 7 * 86400 and parse_duration("-", "90") == 90 and parse_duration("-", "2h") == 7200
+
+
+def test_run_json_records_the_command_line_and_the_cache_it_used(spec_file, tmp_path):
+    import json
+
+    from eponet.cli import main
+
+    args = ["run", str(spec_file), "--set", "cache.enabled=true", "--set", "stages.flow.preset=fast", "--no-cache",
+            "--cache-dir", str(tmp_path / "cache"), "-q"]
+    assert main(args) == 0
+    run = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert run["invocation"] == {"overrides": ["cache.enabled=true", "stages.flow.preset=fast"], "no_cache": True,
+                                 "cache_dir": str(tmp_path / "cache")}
+    assert run["spec"]["cache"] == {"enabled": False, "dir": str(tmp_path / "cache")}
+    assert run["spec"]["stages"]["flow"]["preset"] == "fast" and "weights_sha256" in run
+    assert not (tmp_path / "cache").exists()

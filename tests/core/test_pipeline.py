@@ -113,3 +113,39 @@ def test_large_frames_are_warned_about_with_the_estimated_memory(frames_dir, tmp
         "run.lag 30), above the 8 GiB warning bound; a lower input.scale, run.chunk or run.lag uses less")
     assert memory_warning(spec, SequenceSource(name="hd", files=[], size=(1080, 1920), count=200)) is None
     assert memory_warning(spec, SequenceSource(name="short", files=[], size=(3000, 4000), count=10)) is None
+
+
+def test_a_second_run_keeps_the_first_runs_record_and_the_same_spec_still_resumes(frames_dir, tmp_path):
+    out = tmp_path / "out"
+    first = Pipeline(_spec(frames_dir, out, tmp_path / "cache")).run()
+    other = Pipeline(_spec(frames_dir, out, tmp_path / "cache", flow={"preset": "fast"})).run()
+    assert "resumed" not in other["sequences"]["clip"]  # a different spec recomputes
+    run = json.loads((out / "run.json").read_text())
+    assert run["spec"]["stages"]["flow"]["preset"] == "fast"
+    assert [r["spec"]["stages"]["flow"]["preset"] for r in run["runs"]] == ["medium"]
+    assert run["runs"][0]["started"] == first["started"] and run["runs"][0]["sequences"]["clip"]["frames"] == 5
+    again = Pipeline(_spec(frames_dir, out, tmp_path / "cache", flow={"preset": "fast"})).run()
+    assert again["sequences"]["clip"]["resumed"] is True  # the same spec again skips what it finished
+    run = json.loads((out / "run.json").read_text())
+    assert [r["spec"]["stages"]["flow"]["preset"] for r in run["runs"]] == ["medium", "fast"]
+    assert all("runs" not in r for r in run["runs"])  # one flat list, oldest first
+
+
+def test_the_next_run_removes_what_a_killed_run_left_half_written(frames_dir, tmp_path):
+    out = tmp_path / "out"
+    partial = out / ".clip.k3x9.partial" / "flow" / "forward"
+    partial.mkdir(parents=True)
+    (partial / "00000.flo").write_bytes(b"half")
+    (out / ".run.ab12.tmp.json").write_text("{")
+    Pipeline(_spec(frames_dir, out, tmp_path / "cache")).run()
+    assert sorted(p.name for p in out.iterdir()) == ["clip", "run.json"]
+
+
+def test_an_unreadable_run_record_is_kept_aside(frames_dir, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "run.json").write_text("{not json")
+    manifest = Pipeline(_spec(frames_dir, out, tmp_path / "cache")).run()
+    assert manifest["runs"] == [] and "resumed" not in manifest["sequences"]["clip"]
+    [aside] = out.glob("run-unreadable-*.json")
+    assert aside.read_text() == "{not json"
