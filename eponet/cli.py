@@ -97,6 +97,11 @@ def _print_summary(manifest: dict, out_dir: Path, quiet: bool) -> None:
             value = overall.get(metric, {}).get("mean") if isinstance(overall.get(metric), dict) else None
             if value is not None:
                 parts.append(f"{metric} mean {value:.3f}")
+        if evaluation.get("max_frames") is not None:
+            rows = [e for e in evaluation.get("sequences", {}).values() if isinstance(e, dict)]
+            parts.append(f"{sum(e.get('frames_scored', 0) for e in rows)} of "
+                         f"{sum(e.get('frames_in_ground_truth', 0) for e in rows)} ground-truth frames scored "
+                         f"(input.max_frames {evaluation['max_frames']})")
         lines.append("evaluation: " + ", ".join(parts))
     lines.append(f"outputs in {out_dir} (run.json beside them)")
     if not quiet:

@@ -41,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--split", help="DAVIS: a set of db_info.yml / ImageSets (train, val); FBMS: train or test")
     parser.add_argument("--resolution", default="480p", help="DAVIS annotation resolution (default: 480p)")
     parser.add_argument("--frames", type=Path, help="folders dataset only: the frames folder that orders frames")
+    parser.add_argument("--max-frames", type=int, metavar="N",
+                        help="score only the first N frames of each sequence (default: the input.max_frames that "
+                             "RESULTS/run.json records)")
     parser.add_argument("--json", type=Path, metavar="OUT.json", help="write the results as JSON")
     parser.add_argument("--csv", type=Path, metavar="OUT.csv", help="write per-sequence rows as CSV")
     parser.add_argument("--chart", type=Path, metavar="PATH.png",
@@ -74,9 +77,13 @@ def _run(args: argparse.Namespace) -> int:
         sequences = [s.strip() for s in args.sequences.split(",") if s.strip()]
         if not sequences:
             raise InputError("--sequences: no sequence names given")
+    max_frames = args.max_frames if args.max_frames is not None else _recorded_max_frames(args.results)
+    if max_frames is not None and max_frames < 1:
+        raise InputError(f"--max-frames: expected a positive integer, got {max_frames}")
     result = evaluate(
         args.dataset, args.root, args.results, sequences=sequences, resolution=args.resolution, split=args.split,
         frames=args.frames, compute_t=not args.no_t, workers=args.workers, per_frame=args.per_frame,
+        max_frames=max_frames,
     )
     if not args.quiet:
         sys.stdout.write(format_report(result, method=args.method))
@@ -91,6 +98,22 @@ def _run(args: argparse.Namespace) -> int:
         write_bar_chart(result, chart)
         log.info("wrote %s", chart)
     return 0
+
+
+def _recorded_max_frames(results: Path) -> int | None:
+    """The ``input.max_frames`` of the eponet run that wrote ``results`` (its ``run.json``), if any."""
+    import json
+
+    try:
+        record = json.loads((results / "run.json").read_text())
+        value = record["spec"]["input"]["max_frames"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if isinstance(value, int) and not isinstance(value, bool):
+        log.info("%s: the run processed the first %d frames of each sequence (input.max_frames); scoring those",
+                 results / "run.json", value)
+        return value
+    return None
 
 
 def main(argv: list[str] | None = None) -> int:

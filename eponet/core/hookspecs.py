@@ -9,7 +9,7 @@ import pluggy
 
 from .params import Param
 
-__all__ = ["PROJECT", "hookspec", "hookimpl", "StageSpec", "eponet_stages", "eponet_evaluate", "eponet_weights"]
+__all__ = ["PROJECT", "hookspec", "hookimpl", "StageSpec", "eponet_stages", "eponet_evaluate", "eponet_evaluate_problems", "eponet_weights"]
 
 PROJECT = "eponet"
 hookspec = pluggy.HookspecMarker(PROJECT)
@@ -52,6 +52,13 @@ def eponet_evaluate(spec, sequences: list[str]) -> dict | None:
     """Score the masks a run wrote under ``spec.output.dir`` for ``sequences`` as the spec's ``evaluate:``
     section says; return the evaluation (JSON-serialisable) or ``None`` to leave it to another plugin. The
     built-in implementation (``eponet.plugins.evaluate``) uses :mod:`eponet.evaluation`; core never imports it."""
+
+
+@hookspec(firstresult=True)
+def eponet_evaluate_problems(options: dict, input_path, resolution: str, sequences: list[str] | None) -> list[str] | None:
+    """Check, while a spec is validated, that the ground truth its ``evaluate:`` section (``options``, paths
+    resolved) will need exists for the input (``input.path``, ``input.resolution``, ``input.sequences``); return
+    one-line problems (an empty list when all is there) or ``None`` to leave it to another plugin."""
 
 
 @hookspec

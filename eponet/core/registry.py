@@ -118,6 +118,13 @@ class Registry:
         assert self.manager is not None
         return self.manager.hook.eponet_evaluate(spec=spec, sequences=sequences)
 
+    def evaluate_problems(self, options: dict, input_path, resolution: str, sequences) -> list[str]:
+        """What the spec's ``evaluate:`` section will miss (``eponet_evaluate_problems``), as one-line problems."""
+        if self.manager is None:
+            return []
+        return list(self.manager.hook.eponet_evaluate_problems(options=options, input_path=input_path,
+                                                               resolution=resolution, sequences=sequences) or [])
+
     def builtin_weights(self) -> set[str]:
         """Names of the weights that plugins ship (``eponet_weights``)."""
         assert self.manager is not None

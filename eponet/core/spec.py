@@ -326,10 +326,11 @@ def parse_spec(
         evaluate = _validate_evaluate(evaluate, resolve_path, problems)
         if evaluate is not None and "refiner" not in present:
             problems.append("evaluate: scoring needs masks, i.e. a refiner stage")
-        if evaluate is not None and input_values.get("max_frames"):
-            problems.append("evaluate: scores need every frame of a sequence, but input.max_frames limits them")
         if evaluate is not None and evaluate.get("dataset") == "generic" and not evaluate.get("masks"):
             problems.append("evaluate.masks: dataset generic needs the folder of ground-truth masks")
+        if evaluate is not None and "dataset" in evaluate and input_path is not None and input_path.exists():
+            problems.extend(registry.evaluate_problems(evaluate, input_path, input_values.get("resolution", "480p"),
+                                                       sequences if isinstance(sequences, list) else None))
 
     if problems:
         raise SpecError(problems, file=file)

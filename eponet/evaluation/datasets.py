@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
@@ -18,9 +18,12 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.io import IMAGE_SUFFIXES, natural_key, read_mask
+from ..core.registry import nearest
 
 __all__ = [
     "DATASETS",
+    "davis_annotations",
+    "limit_frames",
     "DATASET_ALIASES",
     "VOID_LABEL",
     "MAX_PROPOSALS",
@@ -243,28 +246,35 @@ def _select(available: Sequence[str], wanted: Sequence[str] | None, where: Path)
     missing = [s for s in wanted if s not in available]
     if missing:
         shown = ", ".join(repr(s) for s in missing[:5]) + (" ..." if len(missing) > 5 else "")
-        raise InputError(f"{where}: no ground truth for sequence(s) {shown}")
+        hint = nearest(missing[0], list(available))
+        raise InputError(f"{where}: no ground truth for sequence(s) {shown}"
+                         f"{f' (did you mean {hint!r}?)' if hint else ''}")
     return list(dict.fromkeys(wanted))
 
 
 # ---------------------------------------------------------------------------------------------------------------
 # DAVIS
 # ---------------------------------------------------------------------------------------------------------------
-def _load_davis(name: str, root: Path, sequences, resolution: str, split: str | None) -> Dataset:
-    if name == "davis2016":
+def davis_annotations(name: str, root: Path, resolution: str) -> Path:
+    """The annotation folder of a DAVIS root (``davis2016``: ``Annotations/<resolution>``; ``davis2017``:
+    ``Annotations_unsupervised/<resolution>``, else ``Annotations/<resolution>``); an :class:`InputError` naming
+    the missing folder and the resolutions that exist when there is none."""
+    root = Path(root)
+    ann_dir = root / ("Annotations" if name == "davis2016" else "Annotations_unsupervised") / resolution
+    if name != "davis2016" and not ann_dir.is_dir() and (root / "Annotations" / resolution).is_dir():
+        log.warning("%s: no Annotations_unsupervised/%s; using Annotations/%s (the semi-supervised objects)",
+                    root, resolution, resolution)
         ann_dir = root / "Annotations" / resolution
-        set_dirs = ("", resolution, "2016")
-    else:
-        ann_dir = root / "Annotations_unsupervised" / resolution
-        set_dirs = ("2017", "", resolution)
-        if not ann_dir.is_dir() and (root / "Annotations" / resolution).is_dir():
-            log.warning("%s: no Annotations_unsupervised/%s; using Annotations/%s (the semi-supervised objects)",
-                        root, resolution, resolution)
-            ann_dir = root / "Annotations" / resolution
     if not ann_dir.is_dir():
         found = [p.name for p in (ann_dir.parent.iterdir() if ann_dir.parent.is_dir() else []) if p.is_dir()]
-        hint = f" (found resolutions: {', '.join(sorted(found))})" if found else ""
-        raise InputError(f"{ann_dir}: no such folder; expected {name} annotations <sequence>/*.png there{hint}")
+        hint = f"resolutions here: {', '.join(sorted(found))}" if found else f"no {ann_dir.parent.name}/ folder in {root}"
+        raise InputError(f"{ann_dir}: no such folder, so {name} cannot be scored at {resolution} ({hint})")
+    return ann_dir
+
+
+def _load_davis(name: str, root: Path, sequences, resolution: str, split: str | None) -> Dataset:
+    set_dirs = ("", resolution, "2016") if name == "davis2016" else ("2017", "", resolution)
+    ann_dir = davis_annotations(name, root, resolution)
     info = read_davis_info(root)
     seq_info = info.get("sequences", {})
     on_disk = [p.name for p in _subdirs(ann_dir)]
@@ -503,6 +513,17 @@ def load_dataset(
     if name == "fbms59":
         return _load_fbms(root, sequences, split)
     return _load_folders(root, sequences, frames)
+
+
+def limit_frames(dataset: Dataset, max_frames: int) -> Dataset:
+    """``dataset`` with each sequence cut to its first ``max_frames`` frames (a run with ``input.max_frames``
+    processed only those): ``scored`` keeps the scored frames among them. A data set indexed without its frames
+    (FBMS-59 without a frames folder) knows only its annotated frames, and those are what is counted."""
+    sequences = []
+    for seq in dataset.sequences:
+        kept = set(seq.frames[:max_frames])
+        sequences.append(replace(seq, frames=seq.frames[:max_frames], scored=tuple(f for f in seq.scored if f in kept)))
+    return replace(dataset, sequences=tuple(sequences))
 
 
 # ---------------------------------------------------------------------------------------------------------------

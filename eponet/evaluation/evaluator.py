@@ -19,6 +19,7 @@ from .datasets import (
     GT_LABELS,
     MAX_PROPOSALS,
     Dataset,
+    limit_frames,
     load_dataset,
     locate_results,
     read_ground_truth,
@@ -227,6 +228,9 @@ def _evaluate_binary(dataset: Dataset, found, runner: _Runner, *, compute_f: boo
         if dataset.name == "davis2016":
             t_mean = stats.nanmean(t_values[seq.name]) if seq.name in t_values else math.nan
             entry["T"] = {"mean": t_mean}
+            why = _why_no_t(dataset, seq, compute_t)
+            if why:
+                entry["T"]["missing"] = why
             entry["eval_t"] = seq.eval_t
             entry["attributes"] = list(seq.attributes)
         entry["n_frames"] = len(vals)
@@ -238,6 +242,9 @@ def _evaluate_binary(dataset: Dataset, found, runner: _Runner, *, compute_f: boo
                 entry["per_frame"]["T_pairs"] = t_values[seq.name]
         per_seq[seq.name] = entry
 
+    missing_t = {name: e["T"]["missing"] for name, e in per_seq.items() if "missing" in e.get("T", {})}
+    if compute_t and missing_t:
+        log.info("no T for %s", "; ".join(f"{name} ({why})" for name, why in missing_t.items()))
     metrics = ["J", "F"] if compute_f else ["J"]
     overall = _overall(per_seq, metrics)
     if dataset.name == "davis2016":
@@ -250,6 +257,17 @@ def _evaluate_binary(dataset: Dataset, found, runner: _Runner, *, compute_f: boo
     overall["n_sequences"] = len(per_seq)
     overall["n_frames"] = len(all_j)
     return {"sequences": per_seq, "overall": overall}
+
+
+def _why_no_t(dataset: Dataset, seq, compute_t: bool) -> str | None:
+    """Why a DAVIS-2016 sequence has no T, or ``None`` when it has one."""
+    if not compute_t:
+        return "T not asked for"
+    if not seq.eval_t:
+        return "db_info.yml does not set eval_t for it: DAVIS leaves T out there"
+    if len(seq.scored) < 2:
+        return f"too few frames: {len(seq.scored)} scored, T needs 2 consecutive"
+    return None
 
 
 def _evaluate_davis2017(dataset: Dataset, found, runner: _Runner, *, bound_th: float, per_frame: bool,
@@ -354,11 +372,18 @@ def evaluate_dataset(
     workers: int | None = None,
     bound_th: float = 0.008,
     per_frame: bool = False,
+    max_frames: int | None = None,
 ) -> dict:
     """Score ``results`` against an already loaded :class:`~eponet.evaluation.datasets.Dataset`.
 
     See :func:`evaluate` for the result structure.
     """
+    in_ground_truth = {seq.name: len(seq.scored) for seq in dataset.sequences}
+    if max_frames is not None:
+        dataset = limit_frames(dataset, max_frames)
+        scored = sum(len(seq.scored) for seq in dataset.sequences)
+        log.info("scoring the frames a run with max_frames %d processed: %d of %d scored ground-truth frames",
+                 max_frames, scored, sum(in_ground_truth.values()))
     found = locate_results(dataset, results)
     runner = _Runner(default_workers() if workers is None else workers)
     timings: dict[str, float] = {}
@@ -373,6 +398,10 @@ def evaluate_dataset(
                 timings=timings)
     finally:
         runner.close()
+    for seq in dataset.sequences:
+        if seq.name in body["sequences"]:
+            body["sequences"][seq.name].update(frames_scored=len(seq.scored),
+                                               frames_in_ground_truth=in_ground_truth[seq.name])
     attributes = _attribute_table(dataset, body["sequences"]) if dataset.attributes else {}
     out = {
         "dataset": dataset.name,
@@ -385,6 +414,8 @@ def evaluate_dataset(
         "attributes": attributes,
         "timings_s": timings,
     }
+    if max_frames is not None:
+        out["max_frames"] = max_frames
     if dataset.notes:
         out["notes"] = list(dataset.notes)
     return _clean(out)
@@ -403,6 +434,7 @@ def evaluate(
     workers: int | None = None,
     bound_th: float = 0.008,
     per_frame: bool = False,
+    max_frames: int | None = None,
 ) -> dict:
     """Evaluate a results folder on a data set with the DAVIS protocol (``shared/docs/metrics.md``).
 
@@ -430,6 +462,9 @@ def evaluate(
         F tolerance (fraction of the diagonal, or pixels if >= 1).
     per_frame : bool
         Also keep the per-frame values of every sequence (``"per_frame"``).
+    max_frames : int, optional
+        Score only the first ``max_frames`` frames of each sequence (those a run with ``input.max_frames``
+        processed); each sequence records ``frames_scored`` and ``frames_in_ground_truth``.
 
     Returns
     -------
@@ -437,7 +472,8 @@ def evaluate(
         JSON-ready (missing values are ``None``)::
 
             {"dataset", "protocol", "root", "results", "resolution",
-             "sequences": {seq: {"J": {"mean", "recall", "decay"}, "F": {...}, "T": {"mean"}, "n_frames", ...}},
+             "sequences": {seq: {"J": {"mean", "recall", "decay"}, "F": {...}, "T": {"mean"[, "missing": why]},
+                                 "n_frames", "frames_scored", "frames_in_ground_truth", ...}},
              "overall": {"J": {...}, "F": {...}, "T": {"mean"}, "JF": {"mean"}, "n_sequences", ...},
              "attributes": {attr: {"with", "without", "change", "n_with", "n_without"}},
              "timings_s": {...}}
@@ -450,4 +486,4 @@ def evaluate(
     """
     ds = load_dataset(dataset, root, sequences=sequences, resolution=resolution, split=split, frames=frames)
     return evaluate_dataset(ds, results, compute_t=compute_t, workers=workers, bound_th=bound_th,
-                            per_frame=per_frame)
+                            per_frame=per_frame, max_frames=max_frames)

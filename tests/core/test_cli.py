@@ -166,3 +166,13 @@ def test_run_json_records_the_command_line_and_the_cache_it_used(spec_file, tmp_
     assert run["spec"]["cache"] == {"enabled": False, "dir": str(tmp_path / "cache")}
     assert run["spec"]["stages"]["flow"]["preset"] == "fast" and "weights_sha256" in run
     assert not (tmp_path / "cache").exists()
+
+
+def test_the_summary_says_how_many_frames_a_max_frames_run_scored(capsys, tmp_path):
+    from eponet.cli import _print_summary
+
+    evaluation = {"overall": {"J": {"mean": 0.5}}, "max_frames": 4,
+                  "sequences": {"a": {"frames_scored": 3, "frames_in_ground_truth": 23},
+                                "b": {"frames_scored": 3, "frames_in_ground_truth": 33}}}
+    _print_summary({"sequences": {}, "evaluation": evaluation}, tmp_path, quiet=False)
+    assert "J mean 0.500, 6 of 56 ground-truth frames scored (input.max_frames 4)" in capsys.readouterr().out

@@ -149,3 +149,32 @@ def test_an_unreadable_run_record_is_kept_aside(frames_dir, tmp_path):
     assert manifest["runs"] == [] and "resumed" not in manifest["sequences"]["clip"]
     [aside] = out.glob("run-unreadable-*.json")
     assert aside.read_text() == "{not json"
+
+
+def test_run_json_is_written_before_scoring_and_keeps_a_scoring_failure(frames_dir, tmp_path, monkeypatch):
+    import dataclasses
+
+    from eponet.core.errors import InputError as ScoringError
+    from eponet.core.registry import Registry
+
+    def fail(self, spec, sequences):
+        assert json.loads((spec.output.dir / "run.json").read_text())["sequences"]["clip"]["frames"] == 5
+        raise ScoringError("Annotations/240p: no such folder")
+
+    monkeypatch.setattr(Registry, "evaluate", fail)
+    spec = dataclasses.replace(_spec(frames_dir, tmp_path / "out", tmp_path / "cache"), evaluate={"dataset": "davis2016"})
+    with pytest.raises(ScoringError):
+        Pipeline(spec).run()
+    record = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert record["sequences"]["clip"]["frames"] == 5 and "total_seconds" in record
+    assert record["evaluation"] == {"error": "InputError: Annotations/240p: no such folder"}
+
+
+def test_each_finished_sequence_logs_its_stage_seconds_and_progress(frames_dir, tmp_path, caplog):
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="eponet.core.pipeline"):
+        Pipeline(_spec(frames_dir, tmp_path / "out", tmp_path / "cache")).run()
+    lines = [r.getMessage() for r in caplog.records]
+    assert any(line.startswith("clip: flow ") and " s, " in line and "5 frames in " in line for line in lines)
+    assert any(line.startswith("1/1 sequences done, ") and line.endswith(" s elapsed") for line in lines)

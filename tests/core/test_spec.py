@@ -127,3 +127,48 @@ def test_set_overrides_and_relative_paths(frames_dir, tmp_path, monkeypatch):
 def test_malformed_override():
     with pytest.raises(SpecError, match=r"--set nonsense: expected key.path=value"):
         apply_overrides({}, ["nonsense"])
+
+
+def _davis_input(root, resolutions=("480p",), sequences=("bear", "dog")):
+    """A DAVIS-layout input root: frames at 240p, annotations at ``resolutions``."""
+    from tests.conftest import textured_frames, write_frames
+
+    for seq in sequences:
+        write_frames(root / "JPEGImages" / "240p" / seq, textured_frames(4), suffix=".jpg")
+        for resolution in resolutions:
+            write_frames(root / "Annotations" / resolution / seq, textured_frames(4))
+    return root
+
+
+def _evaluated(root, out, **input_extra):
+    return {"preset": "epo", "input": {"path": str(root), "resolution": "240p", **input_extra},
+            "output": {"dir": str(out)}, "evaluate": {"dataset": "davis2016"}}
+
+
+def test_evaluation_without_its_annotations_fails_at_validation(tmp_path):
+    root = _davis_input(tmp_path / "DAVIS")
+    with pytest.raises(SpecError) as info:
+        parse_spec(_evaluated(root, tmp_path / "out"))
+    (problem,) = info.value.problems
+    assert "Annotations/240p: no such folder" in problem and "resolutions here: 480p" in problem
+    assert "\n" not in problem
+
+
+def test_evaluation_sequence_typo_suggests_the_nearest_name(tmp_path):
+    root = _davis_input(tmp_path / "DAVIS", resolutions=("240p",))
+    with pytest.raises(SpecError, match="did you mean 'bear'"):
+        parse_spec(_evaluated(root, tmp_path / "out", sequences=["baer"]))
+
+
+def test_evaluation_with_max_frames_is_valid(tmp_path):
+    root = _davis_input(tmp_path / "DAVIS", resolutions=("240p",))
+    spec = parse_spec(_evaluated(root, tmp_path / "out", max_frames=3))
+    assert spec.input.max_frames == 3 and spec.evaluate["dataset"] == "davis2016"
+
+
+def test_evaluation_at_another_resolution_than_the_masks_fails_at_validation(tmp_path):
+    root = _davis_input(tmp_path / "DAVIS")
+    document = _evaluated(root, tmp_path / "out")
+    document["evaluate"]["resolution"] = "480p"
+    with pytest.raises(SpecError, match=r"evaluate.resolution: masks are written at the input frames' size \(240p\)"):
+        parse_spec(document)

@@ -46,9 +46,11 @@ def test_success_writes_json_csv_and_chart(setup, capsys):
         entry = data["sequences"][seq]
         assert set(entry["J"]) == {"mean", "recall", "decay"}
         assert set(entry["F"]) == {"mean", "recall", "decay"}
-        assert set(entry["T"]) == {"mean"}
         assert 0.5 < entry["J"]["mean"] < 1.0 and entry["F"]["mean"] == 1.0
+        assert entry["frames_scored"] == entry["frames_in_ground_truth"] == entry["n_frames"]
+    assert set(data["sequences"]["alpha"]["T"]) == {"mean"}
     assert data["sequences"]["beta"]["T"]["mean"] is None
+    assert "eval_t" in data["sequences"]["beta"]["T"]["missing"]  # says why it has no T
     assert data["overall"]["T"]["mean"] is not None
     assert set(data["attributes"]["DB"]) == {"with", "without", "change", "n_with", "n_without"}
     rows = list(csv.reader((tmp / "eval" / "scores.csv").open()))
@@ -113,3 +115,46 @@ def test_module_entry_point(setup):
                            "--results", str(tmp / "missing"), "-q"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and "results folder does not exist" in proc.stderr
+
+
+def test_a_run_with_max_frames_scores_the_frames_it_processed(tmp_path, capsys):
+    seqs = {"alpha": moving_square(7), "beta": moving_square(6, step=1, start=(20, 20))}
+    root = make_davis2016(tmp_path / "DAVIS", seqs, INFO)
+    results = write_results(tmp_path / "results", {k: v[:4] for k, v in seqs.items()})  # input.max_frames 4
+    args = ["--dataset", "davis2016", "--root", str(root), "--results", str(results), "--workers", "1",
+            "--json", str(tmp_path / "scores.json")]
+    assert main(args) == 2 and "scored frames missing" in capsys.readouterr().err  # no record of the limit
+    (results / "run.json").write_text(json.dumps({"spec": {"input": {"max_frames": 4}}}))
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "first 4 frames of each sequence (input.max_frames)" in err and "6 of 9 scored ground-truth frames" in err
+    data = json.loads((tmp_path / "scores.json").read_text())
+    alpha = data["sequences"]["alpha"]
+    assert (alpha["frames_scored"], alpha["frames_in_ground_truth"], alpha["n_frames"]) == (3, 5, 3)
+    assert alpha["J"]["mean"] == 1.0 and data["max_frames"] == 4
+    assert main(args + ["--max-frames", "2"]) == 0  # the flag wins over run.json; one scored frame: no T
+    data = json.loads((tmp_path / "scores.json").read_text())
+    assert data["sequences"]["alpha"]["frames_scored"] == 1
+    assert "too few frames" in data["sequences"]["alpha"]["T"]["missing"]
+
+
+def test_a_sequence_typo_suggests_the_nearest_name(setup, capsys):
+    root, results, _ = setup
+    code = main(["--dataset", "davis2016", "--root", str(root), "--results", str(results), "--sequences", "alpah"])
+    err = capsys.readouterr().err
+    assert code == 2 and "did you mean 'alpha'" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_run_evaluation_scores_the_frames_of_input_max_frames(tmp_path):
+    from types import SimpleNamespace
+
+    from eponet.plugins.evaluate import eponet_evaluate
+
+    seqs = {"alpha": moving_square(7)}
+    root = make_davis2016(tmp_path / "DAVIS", seqs, INFO)
+    results = write_results(tmp_path / "results", {"alpha": seqs["alpha"][:5]})
+    spec = SimpleNamespace(evaluate={"dataset": "davis2016", "root": root, "t": True}, output=SimpleNamespace(dir=results),
+                           input=SimpleNamespace(path=root, resolution="480p", max_frames=5))
+    result = eponet_evaluate(spec=spec, sequences=["alpha"])
+    alpha = result["sequences"]["alpha"]
+    assert (alpha["frames_scored"], alpha["frames_in_ground_truth"]) == (4, 5) and alpha["T"]["mean"] is not None
