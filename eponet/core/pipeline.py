@@ -27,6 +27,7 @@ from .progress import progress_enabled
 from .sanity import SequenceChecks
 from .spec import Spec
 from .stream import FrameItem, SequenceStream, memory_estimate, video_digest
+from .workers import run_in_workers, worker_count
 from .types import FlowPair, Video
 
 __all__ = ["Pipeline", "run_spec", "stage_times_line", "library_versions", "memory_warning", "MEMORY_WARNING_BYTES"]
@@ -253,7 +254,7 @@ class Pipeline:
                 log.info("%s: finished by an earlier run of this spec; skipped", source.name)
             else:
                 todo.append(source)
-        workers = _workers(spec.run.workers, len(todo))
+        workers = worker_count(spec.run.workers, len(todo))
         manifest["workers"] = workers
         warn_about_memory(spec, todo)
         order = {s.name: k for k, s in enumerate(sources)}
@@ -272,7 +273,7 @@ class Pipeline:
             for source in todo:
                 finished(source.name, self.run_sequence(source))
         else:
-            _run_in_workers(self, todo, workers, finished)
+            run_in_workers(self, todo, workers, finished)
         manifest["total_seconds"] = round(time.time() - started, 3)
         _write_manifest(spec.output.dir / "run.json", manifest)  # the record is kept whatever scoring does
         if spec.evaluate is not None:
@@ -337,13 +338,6 @@ def _bar(name: str, total: int):
     return tqdm(total=total or None, desc=name, unit="frame", leave=False, dynamic_ncols=True)
 
 
-def _workers(setting, sequences: int) -> int:
-    """Worker processes for ``sequences`` sequences: ``auto`` is one per core (at most one per sequence)."""
-    if setting == "auto":
-        return max(1, min(os.cpu_count() or 1, sequences))
-    return max(1, min(int(setting), max(sequences, 1)))
-
-
 def _read_record(path: Path) -> dict:
     """An earlier run's ``run.json``; one that cannot be read is kept aside as ``run-unreadable-<time>.json``."""
     if not path.is_file():
@@ -368,95 +362,6 @@ def _write_manifest(path: Path, manifest: dict) -> None:
         atomic_write_bytes(path, json.dumps(manifest, indent=2, default=_json_default).encode())
     except OSError as exc:
         raise OutputError(f"{path}: cannot write the run manifest ({exc.strerror or exc})") from None
-
-
-# -- worker processes ----------------------------------------------------------------------------
-_WORKER: Pipeline | None = None
-
-
-def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int) -> None:
-    global _WORKER
-    _limit_threads(threads)
-    from .progress import set_quiet
-
-    set_quiet(True)
-    _WORKER = Pipeline(spec, cache=Cache(cache_root, enabled=cache_enabled))
-
-
-def _limit_threads(threads: int) -> None:
-    """Each worker gets its share of the cores for torch and OpenCV, so that workers do not oversubscribe."""
-    import cv2
-
-    cv2.setNumThreads(threads)
-    try:
-        import torch
-
-        torch.set_num_threads(threads)
-    except ImportError:  # pragma: no cover - torch is a dependency
-        pass
-
-
-def _work(source: SequenceSource):
-    try:
-        return "ok", _WORKER.run_sequence(source)
-    except EponetError as exc:
-        return "error", (exc.__class__.__name__, exc.exit_code, str(exc))
-    except Exception as exc:  # reported in the parent as one line
-        return "error", ("StageError", 1, f"{source.name}: {exc.__class__.__name__}: {exc}")
-
-
-class _WorkerError(EponetError):
-    def __init__(self, message: str, exit_code: int):
-        super().__init__(message)
-        self.exit_code = exit_code
-
-
-def _rebuilt_error(name: str, exit_code: int, message: str) -> EponetError:
-    """The worker's error, as its own type where that is one of eponet's (so callers can catch it)."""
-    from . import errors
-
-    cls = getattr(errors, name, None)
-    if isinstance(cls, type) and issubclass(cls, EponetError) and cls is not errors.SpecError:
-        try:
-            error = cls(message)
-            error.exit_code = exit_code
-            return error
-        except TypeError:
-            pass
-    return _WorkerError(message, exit_code)
-
-
-def _run_in_workers(pipeline: Pipeline, sources: list[SequenceSource], workers: int, finished) -> None:
-    import multiprocessing
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-
-    threads = max(1, (os.cpu_count() or 1) // workers)
-    context = multiprocessing.get_context("spawn")  # no fork of a process whose torch/OpenCV threads run
-    cache = pipeline.cache
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker,
-                             initargs=(pipeline.spec, str(cache.root), cache.enabled, threads)) as pool:
-        futures = {pool.submit(_work, source): source for source in sources}
-        error = None
-        try:
-            while futures:
-                done, _ = wait(futures, return_when=FIRST_COMPLETED)
-                for future in done:
-                    source = futures.pop(future)
-                    if future.cancelled():
-                        continue
-                    status, value = future.result()
-                    if status == "ok":
-                        finished(source.name, value)  # also after an error: what finished is kept
-                    elif error is None:
-                        error = _rebuilt_error(*value)
-                        for other in futures:  # those not started yet; running ones finish
-                            other.cancel()
-        except BaseException:
-            for future in futures:
-                future.cancel()
-            raise
-        if error is not None:
-            raise error
 
 
 def _summarise_triplets(triplets: list[dict]) -> dict:

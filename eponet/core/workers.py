@@ -1,0 +1,113 @@
+"""Worker processes of the run loop: one sequence per process (``run.workers``), each process building its
+pipeline once, with its share of the cores for torch and OpenCV; an error comes back to the parent as one
+line of eponet's own error type."""
+
+from __future__ import annotations
+
+import os
+
+from .cache import Cache
+from .errors import EponetError
+from .inputs import SequenceSource
+from .spec import Spec
+
+__all__ = ["worker_count", "run_in_workers"]
+
+
+def worker_count(setting, sequences: int) -> int:
+    """Worker processes for ``sequences`` sequences: ``auto`` is one per core (at most one per sequence)."""
+    if setting == "auto":
+        return max(1, min(os.cpu_count() or 1, sequences))
+    return max(1, min(int(setting), max(sequences, 1)))
+
+
+_WORKER = None  # the worker process's Pipeline
+
+
+def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int) -> None:
+    global _WORKER
+    _limit_threads(threads)
+    from .progress import set_quiet
+
+    from .pipeline import Pipeline
+
+    set_quiet(True)
+    _WORKER = Pipeline(spec, cache=Cache(cache_root, enabled=cache_enabled))
+
+
+def _limit_threads(threads: int) -> None:
+    """Each worker gets its share of the cores for torch and OpenCV, so that workers do not oversubscribe."""
+    import cv2
+
+    cv2.setNumThreads(threads)
+    try:
+        import torch
+
+        torch.set_num_threads(threads)
+    except ImportError:  # pragma: no cover - torch is a dependency
+        pass
+
+
+def _work(source: SequenceSource):
+    try:
+        return "ok", _WORKER.run_sequence(source)
+    except EponetError as exc:
+        return "error", (exc.__class__.__name__, exc.exit_code, str(exc))
+    except Exception as exc:  # reported in the parent as one line
+        return "error", ("StageError", 1, f"{source.name}: {exc.__class__.__name__}: {exc}")
+
+
+class _WorkerError(EponetError):
+    def __init__(self, message: str, exit_code: int):
+        super().__init__(message)
+        self.exit_code = exit_code
+
+
+def _rebuilt_error(name: str, exit_code: int, message: str) -> EponetError:
+    """The worker's error, as its own type where that is one of eponet's (so callers can catch it)."""
+    from . import errors
+
+    cls = getattr(errors, name, None)
+    if isinstance(cls, type) and issubclass(cls, EponetError) and cls is not errors.SpecError:
+        try:
+            error = cls(message)
+            error.exit_code = exit_code
+            return error
+        except TypeError:
+            pass
+    return _WorkerError(message, exit_code)
+
+
+def run_in_workers(pipeline, sources: list[SequenceSource], workers: int, finished) -> None:
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    context = multiprocessing.get_context("spawn")  # no fork of a process whose torch/OpenCV threads run
+    cache = pipeline.cache
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker,
+                             initargs=(pipeline.spec, str(cache.root), cache.enabled, threads)) as pool:
+        futures = {pool.submit(_work, source): source for source in sources}
+        error = None
+        try:
+            while futures:
+                done, _ = wait(futures, return_when=FIRST_COMPLETED)
+                for future in done:
+                    source = futures.pop(future)
+                    if future.cancelled():
+                        continue
+                    status, value = future.result()
+                    if status == "ok":
+                        finished(source.name, value)  # also after an error: what finished is kept
+                    elif error is None:
+                        error = _rebuilt_error(*value)
+                        for other in futures:  # those not started yet; running ones finish
+                            other.cancel()
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+        if error is not None:
+            raise error
+
+
