@@ -32,6 +32,7 @@ class SequenceSource:
     video: Path | None = None
     size: tuple[int, int] | None = None  # (H, W) of the input frames
     count: int = 0
+    fps: float | None = None  # a video file's frame rate (its header's); None for frames or an unknown rate
 
     @property
     def stems(self) -> list[str]:
@@ -122,6 +123,7 @@ def _check_video(path: Path, max_frames: int | None) -> SequenceSource:
             kind = "video" if path.suffix.lower() in VIDEO_SUFFIXES else "file"
             raise InputError(f"{path}: not a readable video ({kind} could not be decoded by OpenCV)")
         count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        fps = float(capture.get(cv2.CAP_PROP_FPS))
     finally:
         capture.release()
     if max_frames:
@@ -129,7 +131,8 @@ def _check_video(path: Path, max_frames: int | None) -> SequenceSource:
     if 0 < count < MIN_FRAMES:
         raise InputError(f"{path}: {count} frame(s), the pipeline needs at least {MIN_FRAMES} (triplets)")
     _check_size(path, frame.shape[:2])
-    return SequenceSource(name=path.stem, video=path, size=frame.shape[:2], count=count)
+    fps = fps if np.isfinite(fps) and 0 < fps <= 1000 else None  # headers without a rate report 0 (or junk)
+    return SequenceSource(name=path.stem, video=path, size=frame.shape[:2], count=count, fps=fps)
 
 
 def iter_frames(source: SequenceSource, *, scale: float, max_frames: int | None = None, keep_full: bool = True):

@@ -6,23 +6,31 @@ import os
 import shutil
 import tempfile
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 
+import av
 import cv2
 import numpy as np
 
 from .errors import OutputError
 from .imaging import flow_to_color, heat_map, overlay_mask, resize_flow, resize_map
-from .motion import ED_TARGET
 from .io import atomic_path, honour_umask, save_npy, write_flo, write_mask_png
 from .progress import track
 from .types import FlowPair, Video
 
-__all__ = ["SequenceOutputs", "SequenceWriter", "write_sequence", "remove_partials", "OVERLAY_FPS", "PANEL_HEIGHT"]
+__all__ = ["SequenceOutputs", "SequenceWriter", "write_sequence", "remove_partials", "panel", "titled", "even_size",
+           "OVERLAY_FPS", "PANEL_HEIGHT", "TITLE_HEIGHT", "ED_PANEL_FLOOR_PX"]
 
-OVERLAY_FPS = 24
-#: Height in pixels of each tile of ``panels/<frame>.png``.
+#: Frame rate of ``overlay.mp4`` when neither ``output.fps`` nor a video file's header gives one (frame folders).
+OVERLAY_FPS = 24.0
+#: Height in pixels of each tile of ``panels/<frame>.png`` (below its title strip).
 PANEL_HEIGHT = 240
+#: Height in pixels of the title strip above each panel tile.
+TITLE_HEIGHT = 22
+#: The ED tile's colour scale reaches at least this many pixels (of the input frame): a static clip's ED, flow
+#: noise below 1 px, stays in the darkest third of the colours instead of being stretched to full range.
+ED_PANEL_FLOOR_PX = 3.0
 
 
 @dataclass
@@ -43,13 +51,14 @@ class SequenceWriter:
     ``out_dir/.<name>.*.partial`` folder that :meth:`close` renames to ``out_dir/<name>`` (replacing an earlier
     result) and :meth:`abort` removes: a sequence folder under ``output.dir`` is always complete.
 
-    The ED panel of a frame is scaled by the ED scale of the frames around it (the motion net's, the 95th
-    percentile over :data:`eponet.core.motion.ED_WINDOW` frames), not by the whole video's.
+    ``overlay.mp4`` is H.264 (yuv420p, what browsers play) at ``fps`` (default :data:`OVERLAY_FPS`); see
+    :func:`panel` for the panels.
     """
 
-    def __init__(self, out_dir: Path, name: str, save: tuple[str, ...], size: tuple[int, int], shape: tuple[int, int]):
+    def __init__(self, out_dir: Path, name: str, save: tuple[str, ...], size: tuple[int, int], shape: tuple[int, int],
+                 *, fps: float | None = None):
         self.out_dir, self.name, self.save = Path(out_dir), name, tuple(save)
-        self.size, self.shape = size, shape
+        self.size, self.shape, self.fps = size, shape, float(fps or OVERLAY_FPS)
         self.factor = size[1] / shape[1]  # processing px -> input px
         try:
             self.out_dir.mkdir(parents=True, exist_ok=True)
@@ -57,7 +66,7 @@ class SequenceWriter:
             honour_umask(self.folder)  # it becomes the sequence's folder
         except OSError as exc:
             raise OutputError(f"output.dir: cannot write to {self.out_dir} ({exc.strerror or exc})") from None
-        self._overlay = None
+        self._overlay = None  # (container, stream) of PyAV
         self._overlay_tmp = None
         self._previous = None  # the frame before, for the last frame's flow files (none: F-1 pairs)
 
@@ -77,43 +86,55 @@ class SequenceWriter:
                 write_flo(folder / "flow" / "forward" / f"{stem}.flo", resize_flow(item.forward, size))
                 write_flo(folder / "flow" / "backward" / f"{stem}.flo", resize_flow(item.backward, size))
             if "panels" in save:
-                _write_png(folder / "panels" / f"{stem}.png", _panel(item), rgb=True)
+                _write_png(folder / "panels" / f"{stem}.png", panel(item, factor=self.factor), rgb=True)
             if "overlay" in save:
                 self._write_overlay_frame(item)
-        except OSError as exc:  # e.g. the disk is full
-            raise OutputError(f"{folder.parent / self.name}: cannot write frame {stem} ({exc.strerror or exc})") from None
+        except (OSError, av.FFmpegError) as exc:  # e.g. the disk is full
+            raise OutputError(f"{folder.parent / self.name}: cannot write frame {stem} ({_reason(exc)})") from None
 
     def _write_overlay_frame(self, item) -> None:
-        frame = item.full if item.full is not None else item.frame
+        frame = even_size(overlay_mask(item.full if item.full is not None else item.frame, item.mask))
         if self._overlay is None:
             self._overlay_tmp = self.folder / ".overlay.tmp.mp4"
-            height, width = frame.shape[:2]
-            self._overlay = cv2.VideoWriter(str(self._overlay_tmp), cv2.VideoWriter_fourcc(*"mp4v"), OVERLAY_FPS,
-                                            (width, height))
-            if not self._overlay.isOpened():
-                raise OutputError(f"{self.folder.parent / self.name / 'overlay.mp4'}: OpenCV cannot open an mp4 writer")
-        self._overlay.write(cv2.cvtColor(overlay_mask(frame, item.mask), cv2.COLOR_RGB2BGR))
+            container = av.open(str(self._overlay_tmp), "w")
+            # the rate as a fraction: NTSC's 29.97 is 30000/1001
+            stream = container.add_stream("libx264", rate=Fraction(self.fps).limit_denominator(1001))
+            stream.height, stream.width = frame.shape[:2]
+            stream.pix_fmt = "yuv420p"
+            self._overlay = (container, stream)
+        container, stream = self._overlay
+        container.mux(stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")))
+
+    def _close_overlay(self, finish: bool) -> None:
+        container, stream = self._overlay
+        self._overlay = None
+        try:
+            if finish:
+                container.mux(stream.encode(None))  # flush the encoder's delayed frames
+        finally:
+            container.close()
 
     def close(self) -> Path:
         """Finish the sequence: the folder becomes ``out_dir/<name>``."""
         try:
             if self._overlay is not None:
-                self._overlay.release()
+                self._close_overlay(finish=True)
                 os.replace(self._overlay_tmp, self.folder / "overlay.mp4")
-                self._overlay = None
             final = self.out_dir / self.name
             if final.exists():
                 shutil.rmtree(final)
             self.folder.rename(final)
-        except OSError as exc:
+        except (OSError, av.FFmpegError) as exc:
             self.abort()
-            raise OutputError(f"{self.out_dir / self.name}: cannot finish the outputs ({exc.strerror or exc})") from None
+            raise OutputError(f"{self.out_dir / self.name}: cannot finish the outputs ({_reason(exc)})") from None
         return final
 
     def abort(self) -> None:
         if self._overlay is not None:
-            self._overlay.release()
-            self._overlay = None
+            try:
+                self._close_overlay(finish=False)
+            except (OSError, av.FFmpegError):
+                pass  # the folder goes anyway
         shutil.rmtree(self.folder, ignore_errors=True)
 
 
@@ -128,14 +149,14 @@ def remove_partials(out_dir: Path) -> None:
             path.unlink(missing_ok=True)
 
 
-def write_sequence(result: SequenceOutputs, out_dir: Path, save: tuple[str, ...]) -> Path:
+def write_sequence(result: SequenceOutputs, out_dir: Path, save: tuple[str, ...], *, fps: float | None = None) -> Path:
     """Write a whole :class:`SequenceOutputs` (what :meth:`~eponet.core.pipeline.Pipeline.process` returns)
-    through a :class:`SequenceWriter`."""
+    through a :class:`SequenceWriter` (``overlay.mp4`` at ``fps``, default :data:`OVERLAY_FPS`)."""
     from .motion import ed_scales
     from .stream import FrameItem
 
     video = result.video
-    writer = SequenceWriter(out_dir, video.name, save, video.size, video.shape)
+    writer = SequenceWriter(out_dir, video.name, save, video.size, video.shape, fps=fps)
     scales = ed_scales(result.ed) if result.ed is not None else None
     try:
         for t in track(range(video.num_frames), desc=f"{video.name}: writing", total=video.num_frames):
@@ -161,6 +182,10 @@ def write_sequence(result: SequenceOutputs, out_dir: Path, save: tuple[str, ...]
         raise
 
 
+def _reason(exc: Exception) -> str:
+    return str(getattr(exc, "strerror", None) or exc)  # OSError and PyAV's FFmpegError have a strerror
+
+
 def _write_png(path: Path, image: np.ndarray, rgb: bool = False) -> None:
     with atomic_path(path) as tmp:
         data = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if rgb else image
@@ -170,19 +195,57 @@ def _write_png(path: Path, image: np.ndarray, rgb: bool = False) -> None:
         encoded.tofile(tmp)
 
 
-def _panel(item) -> np.ndarray:
-    """Frame, flow in colour, ED heat map, saliency, mask side by side (like Fig. 4 of the paper)."""
+def panel(item, *, factor: float = 1.0) -> np.ndarray:
+    """Frame, flow in colour, ED heat map, saliency, mask side by side (like Fig. 4 of the paper), each tile
+    :data:`PANEL_HEIGHT` px high under a title naming the quantity and its scale (``factor``: input px per
+    processing px, so that scales are in pixels of the input frame, as ``flow/`` and ``ed/`` are).
+
+    - flow: hue is the direction, saturation the magnitude, full at the frame's 99th percentile (``flow max 12.0 px``);
+    - ED: 0 to ``max(ED_PANEL_FLOOR_PX, s)`` px (``ED 0-4.2 px`` with a colour bar), ``s`` the 95th percentile of
+      the ED of the frames around it (the motion net's scale, ``item.ed_scale``; else the frame's own): absolute
+      pixels, so a static clip (ED below 1 px) stays dark and a moving object (several px) is bright;
+    - saliency: 0-1 (colour bar); mask: tinted over the frame.
+    """
     frame = item.full if item.full is not None else item.frame
-    tiles = [frame]
+    tiles = [(frame, "frame", False)]
     if item.motion_flow is not None:
-        tiles.append(flow_to_color(item.motion_flow))
+        magnitude = np.hypot(item.motion_flow[..., 0], item.motion_flow[..., 1])
+        top = max(float(np.percentile(magnitude, 99)), 1e-6)
+        tiles.append((flow_to_color(item.motion_flow, max_magnitude=top), f"flow max {top * factor:.1f} px", False))
     if item.ed is not None:
-        tiles.append(heat_map(item.ed, vmax=(item.ed_scale / ED_TARGET) if item.ed_scale else None))
+        ed = np.nan_to_num(item.ed) * factor
+        scale = item.ed_scale * factor if item.ed_scale else float(np.percentile(ed, 95))
+        top = max(ED_PANEL_FLOOR_PX, scale)
+        tiles.append((heat_map(ed, vmax=top), f"ED 0-{top:.1f} px", True))
     if item.probability is not None:
-        tiles.append(heat_map(item.probability, vmax=1.0))
+        tiles.append((heat_map(item.probability, vmax=1.0), "saliency 0-1", True))
     if item.mask is not None:
-        tiles.append(overlay_mask(frame, item.mask))
-    height = min(PANEL_HEIGHT, frame.shape[0])
-    resized = [cv2.resize(tile, (int(round(tile.shape[1] * height / tile.shape[0])), height), interpolation=cv2.INTER_AREA)
-               for tile in tiles]
-    return np.concatenate(resized, axis=1)
+        tiles.append((overlay_mask(frame, item.mask), "mask", False))
+    height = PANEL_HEIGHT
+    return np.concatenate([titled(cv2.resize(tile, (max(1, int(round(tile.shape[1] * height / tile.shape[0]))), height),
+                                             interpolation=cv2.INTER_AREA), title, color_bar=bar)
+                           for tile, title, bar in tiles], axis=1)
+
+
+def titled(tile: np.ndarray, title: str, *, color_bar: bool = False) -> np.ndarray:
+    """Tile ``(H, W, 3)`` uint8 RGB under a black strip of :data:`TITLE_HEIGHT` px: ``title`` in white (shrunk to
+    fit the width) and, with ``color_bar``, :func:`~eponet.core.imaging.heat_map`'s colours from 0 (left) to the
+    top of the scale (right) under it. Returns ``(TITLE_HEIGHT + H, W, 3)``."""
+    width = tile.shape[1]
+    strip = np.zeros((TITLE_HEIGHT, width, 3), np.uint8)
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.42
+    (text_width, _), _ = cv2.getTextSize(title, font, scale, 1)
+    scale *= min(1.0, (width - 6) / max(text_width, 1))
+    cv2.putText(strip, title, (3, 12 if color_bar else 15), font, scale, (255, 255, 255), 1, cv2.LINE_AA)
+    if color_bar and width > 6:
+        strip[15:20, 3:width - 3] = heat_map(np.tile(np.linspace(0, 1, width - 6, dtype=np.float32), (5, 1)), vmax=1.0)
+    return np.concatenate([strip, tile])
+
+
+def even_size(frame: np.ndarray) -> np.ndarray:
+    """Frame ``(H, W, C)`` padded to even sides by copying its last row / column (H.264 in yuv420p, which browsers
+    play, needs even sizes): a frame of 65x49 px becomes 66x50."""
+    height, width = frame.shape[:2]
+    if height % 2 == 0 and width % 2 == 0:
+        return frame
+    return cv2.copyMakeBorder(frame, 0, height % 2, 0, width % 2, cv2.BORDER_REPLICATE)

@@ -175,7 +175,8 @@ class Pipeline:
         size = tuple(int(v) for v in (size or shape))
         log.info("%s: frames at %dx%d (input %dx%d)", source.name, shape[1], shape[0], size[1], size[0])
         stream = SequenceStream(self, source.name, size, tuple(int(v) for v in shape), digest=digest)
-        writer = SequenceWriter(spec.output.dir, source.name, spec.output.save, size, shape)
+        writer = SequenceWriter(spec.output.dir, source.name, spec.output.save, size, shape,
+                                fps=spec.output.fps or source.fps)
         checks = SequenceChecks(source.name)
         count = 0
         bar = _bar(source.name, source.count)

@@ -44,6 +44,8 @@ _INPUT = {
 _OUTPUT = {
     "dir": Param("dir", "path", None, "output folder (one sub-folder per sequence)", required=True),
     "save": Param("save", "list", ["masks"], "what to write: " + ", ".join(SAVE_ITEMS)),
+    "fps": Param("fps", "float", None, "frame rate of overlay.mp4 (default: a video file's own rate, 24 for "
+                 "frames)", minimum=0.0, exclusive_min=True, nullable=True),
 }
 _RUN = {
     "chunk": Param("chunk", "int", 16, "frames per chunk: flow, rigidity windows (frame groups) and network batches "
@@ -98,6 +100,7 @@ class InputConfig:
 class OutputConfig:
     dir: Path
     save: tuple[str, ...] = ("masks",)
+    fps: float | None = None
 
 
 @dataclass
@@ -340,7 +343,9 @@ def parse_spec(
         "preset": preset_name,
         "input": {**input_values, "path": str(input_path)},
         "stages": {k: {"plugin": s.plugin, **s.params} for k, s in stages.items()},
-        "output": {"dir": str(out_dir), "save": list(save)},
+        # fps only when given: the documents (and config digests) of earlier runs stay as they were
+        "output": {"dir": str(out_dir), "save": list(save),
+                   **({"fps": output_values["fps"]} if output_values.get("fps") is not None else {})},
         "run": {**run_values, "workers": workers},
         "seed": seed,
         "cache": {"enabled": cache_values["enabled"], "dir": str(cache_dir)},
@@ -357,7 +362,7 @@ def parse_spec(
             max_frames=input_values["max_frames"],
         ),
         stages=stages,
-        output=OutputConfig(dir=out_dir, save=tuple(save)),
+        output=OutputConfig(dir=out_dir, save=tuple(save), fps=output_values.get("fps")),
         run=RunConfig(chunk=run_values["chunk"], lag=run_values["lag"], workers=workers, threads=run_values["threads"]),
         seed=seed,
         cache_enabled=cache_values["enabled"],

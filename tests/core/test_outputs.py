@@ -18,3 +18,119 @@ def test_outputs_honour_the_umask(tmp_path, frames_dir):
     assert modes["out/clip"] == 0o755 and modes["out/run.json"] == 0o644
     assert {m for p, m in modes.items() if (tmp_path / p).is_dir()} == {0o755}
     assert {m for p, m in modes.items() if (tmp_path / p).is_file()} == {0o644}
+
+
+# -- overlay.mp4: H.264 at the input's frame rate; panels: titled tiles, ED in absolute pixels -----------------
+
+import av  # noqa: E402
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from eponet.core.errors import SpecError  # noqa: E402
+from eponet.core.outputs import (ED_PANEL_FLOOR_PX, OVERLAY_FPS, PANEL_HEIGHT, TITLE_HEIGHT,  # noqa: E402
+                                 SequenceWriter, panel)
+from eponet.core.pipeline import Pipeline  # noqa: E402
+from eponet.core.spec import parse_spec  # noqa: E402
+from eponet.core.stream import FrameItem  # noqa: E402
+from tests.conftest import textured_frames  # noqa: E402
+
+
+def _decoded(path):
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        frames = [f.to_ndarray(format="rgb24") for f in container.decode(stream)]
+        return stream.codec_context.name, stream.codec_context.pix_fmt, float(stream.average_rate), frames
+
+
+def test_a_10_fps_video_gives_a_10_fps_h264_overlay(tmp_path):
+    frames = textured_frames(count=5, size=(48, 64))
+    video = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    for frame in frames:
+        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    writer.release()
+    spec = parse_spec({"preset": "epo", "input": {"path": str(video), "scale": 0.5},
+                       "stages": {"refiner": {"plugin": "threshold"}},
+                       "output": {"dir": str(tmp_path / "out"), "save": ["overlay"]}, "cache": {"enabled": False}})
+    Pipeline(spec).run()
+    codec, pix_fmt, fps, decoded = _decoded(tmp_path / "out" / "clip" / "overlay.mp4")
+    assert (codec, pix_fmt, fps, len(decoded)) == ("h264", "yuv420p", 10.0, 5)
+    assert decoded[0].shape == (48, 64, 3)
+    assert not (tmp_path / "out" / "clip" / ".overlay.tmp.mp4").exists()
+
+
+def _item(t, frame, mask):
+    item = FrameItem(t, f"{t:05d}", frame)
+    item.mask = mask
+    return item
+
+
+def test_overlay_of_frames_is_at_the_default_or_the_given_rate_odd_sides_padded(tmp_path):
+    frames = textured_frames(count=4, size=(49, 65))  # odd sides: yuv420p needs even ones
+    mask = np.zeros((49, 65), np.uint8)
+    mask[10:30, 20:40] = 1
+    for fps, expected in ((None, OVERLAY_FPS), (12.5, 12.5)):
+        writer = SequenceWriter(tmp_path, f"seq{fps}", ("overlay",), (49, 65), (49, 65), fps=fps)
+        for t, frame in enumerate(frames):
+            writer.write(_item(t, frame, mask))
+        codec, _, rate, decoded = _decoded(writer.close() / "overlay.mp4")
+        # padded by one row and one column
+        assert (codec, rate, len(decoded), decoded[0].shape) == ("h264", expected, 4, (50, 66, 3))
+        # the mask is tinted red in the decoded video, the background is not
+        red, green = decoded[1][..., 0].astype(int), decoded[1][..., 1].astype(int)
+        assert red[20, 30] - green[20, 30] > 60 > abs(red[40, 5] - green[40, 5])
+
+
+def test_output_fps_is_validated_with_its_yaml_path(tmp_path, frames_dir):
+    with pytest.raises(SpecError) as error:
+        parse_spec({"preset": "geometry", "input": {"path": str(frames_dir)},
+                    "output": {"dir": str(tmp_path / "o"), "save": ["flow"], "fps": 0}})
+    assert str(error.value) == "output.fps: expected a number > 0 or null, got 0"
+    spec = parse_spec({"preset": "geometry", "input": {"path": str(frames_dir)},
+                       "output": {"dir": str(tmp_path / "o"), "save": ["flow"], "fps": 12.5}})
+    assert spec.output.fps == 12.5 and spec.document["output"]["fps"] == 12.5
+
+
+def _panel_item(ed, ed_scale=None):
+    frame = textured_frames(count=1, size=(48, 64))[0]
+    item = FrameItem(0, "00000", frame)
+    item.motion_flow = np.full((48, 64, 2), 3.0, np.float32)
+    item.ed, item.ed_scale = ed.astype(np.float32), ed_scale
+    item.probability = np.linspace(0, 1, 48 * 64, dtype=np.float32).reshape(48, 64)
+    item.mask = (item.probability > 0.5).astype(np.uint8)
+    return item
+
+
+def test_panel_tiles_carry_titles_and_colour_bars():
+    item = _panel_item(np.zeros((48, 64)))
+    image = panel(item, factor=2.0)
+    width = 320  # 64 x 48 px tiles at PANEL_HEIGHT = 240
+    assert image.shape == (TITLE_HEIGHT + PANEL_HEIGHT, 5 * width, 3)
+    for k in range(5):
+        strip, tile = image[:TITLE_HEIGHT, k * width:(k + 1) * width], image[TITLE_HEIGHT:, k * width:(k + 1) * width]
+        text = (strip.min(axis=2) > 200).sum()  # white title text on black
+        assert text > 30 and not np.array_equal(strip, tile[:TITLE_HEIGHT]), k
+    bars = [image[15:20, k * width + 10:(k + 1) * width - 10].astype(int) for k in range(5)]
+    colourful = [bool((np.ptp(bar, axis=2) > 40).any()) for bar in bars]
+    assert colourful == [False, False, True, True, False]  # colour bars on the ED and saliency tiles
+    # the flow title names its scale in input px (3 px at the processing size, factor 2): "flow max 6.0 px"
+    assert not np.array_equal(panel(item, factor=2.0)[:TITLE_HEIGHT, width:2 * width],
+                              panel(item, factor=1.0)[:TITLE_HEIGHT, width:2 * width])
+
+
+def _ed_tile(item):
+    return panel(item)[TITLE_HEIGHT:, 2 * 320:3 * 320].max(axis=2)  # brightness of the ED tile
+
+
+def test_the_ed_tile_is_in_absolute_pixels_static_dark_moving_bright():
+    rng = np.random.default_rng(0)
+    noise = rng.uniform(0.0, 1.0, (48, 64))  # a static clip: ED is flow noise below 1 px
+    scale = float(np.percentile(noise, 95))
+    static = _ed_tile(_panel_item(noise, ed_scale=scale))
+    assert static.mean() < 90 and np.percentile(static, 99) < 150  # dark, not stretched to the noise's range
+    assert ED_PANEL_FLOOR_PX == 3.0
+    moving = noise.copy()
+    moving[12:36, 16:48] = 6.0  # an object moving on its own: 6 px off the camera's epipolar lines
+    tile = _ed_tile(_panel_item(moving, ed_scale=float(np.percentile(moving, 95))))
+    assert tile[80:160, 100:220].min() > 200 and tile[:40, :40].mean() < 90  # bright object, dark background
