@@ -1,5 +1,6 @@
 """The Python API: ``eponet.run`` and ``eponet.segment`` (README, "Python API")."""
 
+import importlib
 import json
 import subprocess
 import sys
@@ -27,6 +28,8 @@ def test_import_is_light_and_exposes_the_api():
     loaded = subprocess.run([sys.executable, "-c", "import sys, eponet; print('torch' in sys.modules, "
                              "'eponet.core.pipeline' in sys.modules)"], capture_output=True, text=True, cwd=REPO)
     assert loaded.stdout.split() == ["False", "False"]
+    importlib.import_module("eponet.run")  # the ``python -m eponet.run`` program: eponet.run stays the function
+    assert eponet.run is importlib.import_module("eponet.api").run
 
 
 def test_run_with_a_dict_returns_the_manifest_of_run_json(frames_dir, tmp_path):
@@ -46,6 +49,15 @@ def test_run_with_a_path_and_overrides(frames_dir, tmp_path):
     assert manifest["sequences"]["clip"]["frames"] == 3
     assert manifest["plugins"]["flow"]["params"]["preset"] == "fast"
     assert manifest["invocation"]["overrides"] == {"stages.flow.preset": "fast", "input.max_frames": 3}
+
+
+def test_run_with_a_parsed_spec_and_an_override(frames_dir, tmp_path):
+    from eponet.core.spec import parse_spec
+
+    spec = parse_spec({**FLOW_ONLY, "input": {"path": str(frames_dir)},
+                       "output": {"dir": str(tmp_path / "out"), "save": ["flow"]}})
+    manifest = eponet.run(spec, **{"input.max_frames": 4})
+    assert manifest["sequences"]["clip"]["frames"] == 4 == manifest["spec"]["input"]["max_frames"]
 
 
 def test_run_errors_are_typed_not_system_exit(frames_dir, tmp_path):
