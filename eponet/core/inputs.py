@@ -14,7 +14,7 @@ from .io import IMAGE_SUFFIXES, VIDEO_SUFFIXES, list_images, natural_key, read_i
 from .registry import nearest
 from .types import MIN_FRAMES, MIN_SIDE, Video
 
-__all__ = ["SequenceSource", "discover_sequences", "iter_frames", "load_video", "processing_size"]
+__all__ = ["SequenceSource", "discover_sequences", "iter_frames", "load_video", "video_from_frames", "processing_size"]
 
 log = logging.getLogger(__name__)
 
@@ -153,12 +153,19 @@ def iter_frames(source: SequenceSource, *, scale: float, max_frames: int | None 
             raise InputError(f"{where}: frame {stem} is {full.shape[1]}x{full.shape[0]} but the first frame is "
                              f"{size[1]}x{size[0]}")
         shape = shape or processing_size(size, scale)
-        frame = full if shape == tuple(size) else cv2.resize(full, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+        frame = _resized(full, shape)
         count += 1
         yield stem, frame, (full if keep_full else None)
     if count < MIN_FRAMES:
         raise InputError(f"{source.video or source.name}: {count} decodable frame(s), the pipeline needs at least "
                          f"{MIN_FRAMES}")
+
+
+def _resized(frame: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A frame at the processing size ``shape`` ``(h, w)`` (area interpolation)."""
+    if frame.shape[:2] == tuple(shape):
+        return frame
+    return cv2.resize(frame, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
 
 
 def _decoded(source: SequenceSource, max_frames: int | None):
@@ -201,3 +208,32 @@ def load_video(source: SequenceSource, *, scale: float, max_frames: int | None =
         sources=sources,
         full_frames=np.stack(full) if keep_full else None,
     )
+
+
+def video_from_frames(frames, *, name: str = "video", scale: float, max_frames: int | None = None,
+                      keep_full: bool = True) -> Video:
+    """A :class:`Video` of in-memory frames: a list of uint8 RGB ``(H, W, 3)`` arrays or one ``(F, H, W, 3)``
+    array, checked as a folder of frames is (at least ``MIN_FRAMES``, sides of at least ``MIN_SIDE``, one size).
+
+    >>> video = video_from_frames(np.zeros((4, 32, 48, 3), np.uint8), scale=0.5)
+    >>> video.num_frames, video.shape, video.size
+    (4, (16, 24), (32, 48))
+    """
+    frames = list(frames[:max_frames] if max_frames else frames)
+    for t, frame in enumerate(frames):
+        frame = np.asarray(frame)
+        if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+            raise InputError(f"{name}: frame {t} is a {frame.dtype.name} array of shape {frame.shape}; expected "
+                             f"uint8 RGB frames (H, W, 3), e.g. a (F, H, W, 3) uint8 array")
+        if frame.shape != np.shape(frames[0]):
+            raise InputError(f"{name}: frame {t} is {frame.shape[1]}x{frame.shape[0]} but the first frame is "
+                             f"{np.shape(frames[0])[1]}x{np.shape(frames[0])[0]}")
+        frames[t] = frame
+    if len(frames) < MIN_FRAMES:
+        raise InputError(f"{name}: {len(frames)} frame(s), the pipeline needs at least {MIN_FRAMES} (triplets)")
+    size = frames[0].shape[:2]
+    _check_size(name, size)
+    shape = processing_size(size, scale)
+    return Video(name=name, frames=np.stack([_resized(f, shape) for f in frames]),
+                 stems=[f"{t:05d}" for t in range(len(frames))], size=(int(size[0]), int(size[1])),
+                 full_frames=np.stack(frames) if keep_full else None)

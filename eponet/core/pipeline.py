@@ -231,20 +231,7 @@ class Pipeline:
         previous = _read_record(spec.output.dir / "run.json")
         runs = previous.pop("runs", [])
         history = (runs if isinstance(runs, list) else []) + ([previous] if previous else [])
-        manifest = {
-            "eponet": _dist_version("eponet"),
-            "spec_file": spec.file,
-            "spec": {**spec.document, "cache": {"enabled": self.cache.enabled, "dir": str(self.cache.root)}},
-            "invocation": invocation or {},
-            "seed": spec.seed,
-            "plugins": {kind: {"plugin": c.plugin, "package": c.spec.package, "version": c.spec.version,
-                               "params": c.params} for kind, c in spec.stages.items()},
-            "weights_sha256": self.weights_digests(),
-            "libraries": library_versions(),
-            "started": datetime.fromtimestamp(started, timezone.utc).isoformat(timespec="seconds"),
-            "sequences": {},
-            "runs": history,
-        }
+        manifest = {**self.record(invocation, started), "sequences": {}, "runs": history}
         config = self.config_digest()
         earlier = previous.get("sequences") if isinstance(previous.get("sequences"), dict) else {}
         todo = []
@@ -289,6 +276,24 @@ class Pipeline:
             manifest["total_seconds"] = round(time.time() - started, 3)
             _write_manifest(spec.output.dir / "run.json", manifest)
         return manifest
+
+    def record(self, invocation: dict | None = None, started: float | None = None) -> dict:
+        """What ``run.json`` says about the run besides its sequences: versions, the resolved spec and cache,
+        ``invocation`` as given, seed, plugins, weights digests, libraries and the start time."""
+        spec = self.spec
+        started = time.time() if started is None else started
+        return {
+            "eponet": _dist_version("eponet"),
+            "spec_file": spec.file,
+            "spec": {**spec.document, "cache": {"enabled": self.cache.enabled, "dir": str(self.cache.root)}},
+            "invocation": invocation or {},
+            "seed": spec.seed,
+            "plugins": {kind: {"plugin": c.plugin, "package": c.spec.package, "version": c.spec.version,
+                               "params": c.params} for kind, c in spec.stages.items()},
+            "weights_sha256": self.weights_digests(),
+            "libraries": library_versions(),
+            "started": datetime.fromtimestamp(started, timezone.utc).isoformat(timespec="seconds"),
+        }
 
     def weights_digests(self) -> dict:
         """sha256 of every weights file the stages use (a stage's ``sha256`` attribute: one or a list)."""

@@ -7,7 +7,7 @@ import os
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import yaml
 
@@ -129,7 +129,7 @@ class Spec:
 
 
 # -- reading ------------------------------------------------------------------------------------
-def load_spec(path: str | Path, overrides: list[str] = (), registry: Registry | None = None) -> Spec:
+def load_spec(path: str | Path, overrides: list[str] | Mapping[str, Any] = (), registry: Registry | None = None) -> Spec:
     """Read, override and validate a spec file. Raises :class:`SpecError` listing every problem."""
     path = Path(path)
     try:
@@ -152,21 +152,30 @@ def load_spec(path: str | Path, overrides: list[str] = (), registry: Registry | 
     return parse_spec(document, base_dir=path.resolve().parent, overridden=overridden, registry=registry, file=str(path))
 
 
-def apply_overrides(document: dict, overrides: list[str]) -> tuple[dict, set[str]]:
-    """Apply ``key.path=value`` overrides (values parsed as YAML); returns the new document and the set of
-    overridden dotted paths."""
+def apply_overrides(document: dict, overrides: list[str] | Mapping[str, Any]) -> tuple[dict, set[str]]:
+    """Apply overrides: ``key.path=value`` strings (``--set``; values parsed as YAML) or a mapping of dotted key
+    to value (the Python API; values as given). Returns the new document and the set of overridden dotted paths."""
     document = copy.deepcopy(document)
     overridden: set[str] = set()
     problems = []
-    for item in overrides:
-        key, sep, raw = item.partition("=")
-        if not sep or not key or any(not part for part in key.split(".")):
-            problems.append(f"--set {item}: expected key.path=value")
+    pairs = []  # (dotted key, value, how the problem lines name the override)
+    if isinstance(overrides, Mapping):
+        pairs = [(str(key), value, str(key)) for key, value in overrides.items()]
+    else:
+        for item in overrides:
+            key, sep, raw = item.partition("=")
+            if not sep:
+                problems.append(f"--set {item}: expected key.path=value")
+                continue
+            try:
+                value = yaml.safe_load(raw) if raw != "" else None
+            except yaml.YAMLError:
+                value = raw
+            pairs.append((key, value, f"--set {item}"))
+    for key, value, label in pairs:
+        if not key or any(not part for part in key.split(".")):
+            problems.append(f"{label}: expected key.path=value")
             continue
-        try:
-            value = yaml.safe_load(raw) if raw != "" else None
-        except yaml.YAMLError:
-            value = raw
         node = document
         parts = key.split(".")
         try:
@@ -182,7 +191,7 @@ def apply_overrides(document: dict, overrides: list[str]) -> tuple[dict, set[str
             else:
                 node[parts[-1]] = value
         except (ValueError, IndexError):
-            problems.append(f"--set {item}: {key} does not name an existing list element")
+            problems.append(f"{label}: {key} does not name an existing list element")
             continue
         overridden.add(key)
     if problems:
