@@ -39,7 +39,6 @@ def run(spec: str | Path | Mapping | Any, *, set: Mapping[str, Any] | None = Non
     >>> manifest["sequences"]["demo"]["frames"]  # doctest: +SKIP
     5
     """
-    from .core.cache import Cache
     from .core.pipeline import Pipeline
     from .core.spec import Spec, apply_overrides, load_spec, parse_spec
 
@@ -56,8 +55,7 @@ def run(spec: str | Path | Mapping | Any, *, set: Mapping[str, Any] | None = Non
         spec = load_spec(spec, overrides)
     else:
         raise SpecError(f"eponet.run: expected a spec file path, a dict or a Spec, got {type(spec).__name__}")
-    invocation = {"api": "eponet.run", "overrides": {k: _plain(v) for k, v in overrides.items()}}
-    Pipeline(spec, cache=Cache(spec.cache_dir, enabled=spec.cache_enabled)).run(invocation=invocation)
+    Pipeline(spec).run(invocation={"api": "eponet.run", "overrides": overrides})  # (paths recorded as strings)
     return json.loads((spec.output.dir / "run.json").read_text())
 
 
@@ -102,8 +100,8 @@ def segment(video, preset: str = "epo", *, scale: float = 0.5, max_frames: int |
     >>> result.ed.shape, result.ed.dtype.name, result.masks is None
     ((4, 32, 32), 'float32', True)
     """
-    from .core.imaging import resize_map
     from .core.inputs import discover_sequences, load_video, video_from_frames
+    from .core.outputs import ed_at_input_size
     from .core.pipeline import Pipeline, _Timer
     from .core.spec import parse_spec
 
@@ -140,19 +138,6 @@ def segment(video, preset: str = "epo", *, scale: float = 0.5, max_frames: int |
                                          "processing_size": list(clip.shape),
                                          "timings_s": {k: round(v, 4) for k, v in timer.timings.items()},
                                          "cached": timer.cached}}
-    ed = None
-    if result.ed is not None:  # as the ed/ outputs: at the input size, in its pixels
-        factor = clip.size[1] / clip.shape[1]
-        ed = np.stack([resize_map(e, clip.size) * factor for e in result.ed]).astype(np.float32)
+    ed = None if result.ed is None else np.stack([ed_at_input_size(e, clip.size) for e in result.ed])
     return Segmentation(masks=result.masks, saliency=result.saliency, ed=ed, manifest=manifest)
 
-
-def _plain(value):
-    """A JSON-friendly copy of an override's value (paths as strings)."""
-    if isinstance(value, Path):
-        return str(value)
-    if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    return value

@@ -39,6 +39,16 @@ def textured_frames(count: int = 5, size: tuple[int, int] = (48, 64), shift: tup
     return np.clip(np.stack(frames), 0, 255).astype(np.uint8)
 
 
+def write_video(path: Path, frames: np.ndarray, fps: float = 10) -> Path:
+    """RGB frames (F, H, W, 3) as an MJPG ``.avi`` at ``fps`` (a codec every OpenCV build writes)."""
+    height, width = frames.shape[1:3]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (width, height))
+    for frame in frames:
+        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    writer.release()
+    return path
+
+
 def write_frames(folder: Path, frames: np.ndarray, suffix: str = ".png", start: int = 0) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     paths = []

@@ -19,7 +19,8 @@ from .io import atomic_path, honour_umask, save_npy, write_flo, write_mask_png
 from .progress import track
 from .types import FlowPair, Video
 
-__all__ = ["SequenceOutputs", "SequenceWriter", "write_sequence", "remove_partials", "panel", "titled", "even_size",
+__all__ = ["SequenceOutputs", "SequenceWriter", "write_sequence", "remove_partials", "ed_at_input_size", "panel",
+           "titled", "even_size",
            "OVERLAY_FPS", "PANEL_HEIGHT", "TITLE_HEIGHT", "ED_PANEL_FLOOR_PX"]
 
 #: Frame rate of ``overlay.mp4`` when neither ``output.fps`` nor a video file's header gives one (frame folders).
@@ -79,7 +80,7 @@ class SequenceWriter:
             if "saliency" in save:
                 _write_png(folder / "saliency" / f"{stem}.png", np.round(np.clip(item.probability, 0, 1) * 255).astype(np.uint8))
             if "ed" in save:
-                save_npy(folder / "ed" / f"{stem}.npy", (resize_map(item.ed, size) * self.factor).astype(np.float32))
+                save_npy(folder / "ed" / f"{stem}.npy", ed_at_input_size(item.ed, size))
             if "motion_images" in save:
                 save_npy(folder / "motion_images" / f"{stem}.npy", item.motion_image.astype(np.float32))
             if "flow" in save and item.forward is not None:
@@ -136,6 +137,12 @@ class SequenceWriter:
             except (OSError, av.FFmpegError):
                 pass  # the folder goes anyway
         shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def ed_at_input_size(ed: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """An ED map ``(h, w)`` in processing pixels at the input ``size`` ``(H, W)``, in input pixels (float32): what
+    the ``ed/`` files hold."""
+    return (resize_map(ed, size) * (size[1] / ed.shape[1])).astype(np.float32)
 
 
 def remove_partials(out_dir: Path) -> None:

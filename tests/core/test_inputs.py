@@ -4,7 +4,7 @@ import pytest
 
 from eponet.core.errors import InputError
 from eponet.core.inputs import discover_sequences, iter_frames, load_video
-from tests.conftest import textured_frames, write_frames
+from tests.conftest import textured_frames, write_frames, write_video
 
 
 def test_frames_folder_natural_order_and_scale(tmp_path):
@@ -22,11 +22,7 @@ def test_frames_folder_natural_order_and_scale(tmp_path):
 
 def test_video_file(tmp_path):
     frames = textured_frames(count=6, size=(48, 64))
-    path = tmp_path / "clip.avi"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
-    for frame in frames:
-        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
-    writer.release()
+    path = write_video(tmp_path / "clip.avi", frames)
     (source,) = discover_sequences(path)
     video = load_video(source, scale=1.0)
     assert video.name == "clip" and video.num_frames == 6 and video.stems[:2] == ["00000", "00001"]
@@ -82,11 +78,7 @@ def test_a_video_cut_short_warns_naming_the_frame_it_stopped_at(tmp_path, caplog
     every frame. The sequence ends there with a warning naming the frame, not silently."""
     import logging
 
-    whole = tmp_path / "whole.avi"
-    writer = cv2.VideoWriter(str(whole), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
-    for frame in textured_frames(20, (48, 64)):
-        writer.write(frame)
-    writer.release()
+    whole = write_video(tmp_path / "whole.avi", textured_frames(20, (48, 64)))
     cut = tmp_path / "cut.avi"
     cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
     with caplog.at_level(logging.WARNING):
@@ -112,10 +104,6 @@ def test_frames_smaller_than_the_minimum_are_refused_naming_the_input(tmp_path):
     with pytest.raises(InputError) as caught:
         discover_sequences(tmp_path / "tiny")
     assert str(caught.value) == f"{paths[0]}: frames are 1x1 px; the pipeline needs frames of at least 16x16 px"
-    video = tmp_path / "small.avi"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (32, 8))
-    for frame in textured_frames(3, size=(8, 32)):
-        writer.write(frame)
-    writer.release()
+    video = write_video(tmp_path / "small.avi", textured_frames(3, size=(8, 32)))
     with pytest.raises(InputError, match=r"small.avi: frames are 32x8 px; the pipeline needs frames of at least 16x16"):
         discover_sequences(video)

@@ -1,9 +1,21 @@
-"""Output folders and files get the permissions the umask gives (not tempfile's 0700 / 0600)."""
+"""Output files: permissions the umask gives (not tempfile's 0700 / 0600), overlay.mp4 as H.264 at the input's
+frame rate, panels of titled tiles with ED in absolute pixels."""
 
 import os
 import stat
 import subprocess
 import sys
+
+import av
+import numpy as np
+import pytest
+
+from eponet.core.errors import SpecError
+from eponet.core.outputs import ED_PANEL_FLOOR_PX, OVERLAY_FPS, PANEL_HEIGHT, TITLE_HEIGHT, SequenceWriter, panel
+from eponet.core.pipeline import Pipeline
+from eponet.core.spec import parse_spec
+from eponet.core.stream import FrameItem
+from tests.conftest import textured_frames, write_video
 
 
 def test_outputs_honour_the_umask(tmp_path, frames_dir):
@@ -22,18 +34,6 @@ def test_outputs_honour_the_umask(tmp_path, frames_dir):
 
 # -- overlay.mp4: H.264 at the input's frame rate; panels: titled tiles, ED in absolute pixels -----------------
 
-import av  # noqa: E402
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-
-from eponet.core.errors import SpecError  # noqa: E402
-from eponet.core.outputs import (ED_PANEL_FLOOR_PX, OVERLAY_FPS, PANEL_HEIGHT, TITLE_HEIGHT,  # noqa: E402
-                                 SequenceWriter, panel)
-from eponet.core.pipeline import Pipeline  # noqa: E402
-from eponet.core.spec import parse_spec  # noqa: E402
-from eponet.core.stream import FrameItem  # noqa: E402
-from tests.conftest import textured_frames  # noqa: E402
 
 
 def _decoded(path):
@@ -45,11 +45,7 @@ def _decoded(path):
 
 def test_a_10_fps_video_gives_a_10_fps_h264_overlay(tmp_path):
     frames = textured_frames(count=5, size=(48, 64))
-    video = tmp_path / "clip.avi"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
-    for frame in frames:
-        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
-    writer.release()
+    video = write_video(tmp_path / "clip.avi", frames)
     spec = parse_spec({"preset": "epo", "input": {"path": str(video), "scale": 0.5},
                        "stages": {"refiner": {"plugin": "threshold"}},
                        "output": {"dir": str(tmp_path / "out"), "save": ["overlay"]}, "cache": {"enabled": False}})
