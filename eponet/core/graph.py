@@ -120,6 +120,7 @@ OUTPUTS: dict[str, str] = {
     "motion_images": "ed",
     "overlay": "masks",
     "panels": "flow",
+    "report": "frames",  # index.html of the whole run (eponet.core.html_report); shows what the others saved
 }
 
 

@@ -20,6 +20,7 @@ import numpy as np
 from .cache import Cache, code_fingerprint, content_key
 from .errors import EponetError, OutputError, StageError
 from .graph import GRAPH, check_stage, stage_kind
+from .html_report import write_report
 from .inputs import SequenceSource, discover_sequences, iter_frames, processing_size
 from .io import atomic_write_bytes
 from .outputs import SequenceOutputs, SequenceWriter, remove_partials
@@ -272,10 +273,16 @@ class Pipeline:
             except BaseException as exc:
                 manifest["evaluation"] = {"error": f"{exc.__class__.__name__}: {exc}"}
                 _write_manifest(spec.output.dir / "run.json", manifest)
+                self._write_report(manifest)  # the page says that scoring failed
                 raise
             manifest["total_seconds"] = round(time.time() - started, 3)
             _write_manifest(spec.output.dir / "run.json", manifest)
+        self._write_report(manifest)
         return manifest
+
+    def _write_report(self, manifest: dict) -> None:
+        if "report" in self.spec.output.save:
+            log.info("report: %s", write_report(self.spec.output.dir, manifest))
 
     def record(self, invocation: dict | None = None, started: float | None = None) -> dict:
         """What ``run.json`` says about the run besides its sequences: versions, the resolved spec and cache,
