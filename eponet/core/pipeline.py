@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cache import Cache, code_fingerprint, content_key
+from .cache import Cache, code_fingerprint, content_key, factory_module
 from .errors import EponetError, OutputError, StageError
 from .graph import GRAPH, check_stage, stage_kind
 from .html_report import write_report
@@ -145,9 +145,10 @@ class Pipeline:
         return features.astype(np.float32)
 
     def key(self, kind: str, upstream: str, **extra) -> str:
-        """Cache key of stage ``kind``: its plugin, version, code fingerprint, parameters and upstream key."""
+        """Cache key of stage ``kind``: its plugin, version, code fingerprint (built-in or third-party:
+        :func:`~eponet.core.cache.code_fingerprint`), parameters and upstream key."""
         config = self.spec.stages[kind]
-        code = code_fingerprint(config.spec.factory.__module__) if config.spec.package == "eponet" else None
+        code = code_fingerprint(factory_module(config.spec.factory))  # a third-party plugin's package too
         return content_key(stage=kind, plugin=config.plugin, version=config.spec.version, code=code,
                            params=config.params, upstream=upstream, **extra)
 
