@@ -125,6 +125,14 @@ class Cache:
         except Exception as exc:  # the cache is an optimisation: a full disk must not fail the run
             log.warning("could not write cache entry %s (%s)", path, exc)
 
+    def remove(self, stage: str, key: str) -> None:
+        """Remove an entry if it is there (a checkpoint superseded by the complete result)."""
+        if self.enabled:
+            try:
+                self._path(stage, key).unlink(missing_ok=True)
+            except OSError as exc:
+                log.warning("could not remove cache entry %s (%s)", self._path(stage, key), exc)
+
     # -- maintenance (``eponet cache info | prune``) ----------------------------------------------
     def entries(self) -> list[CacheEntry]:
         """Every stored entry, oldest first (temp files of writers are not entries)."""

@@ -135,7 +135,7 @@ class Pipeline:
         from .cache import array_digest
 
         key = self.key("appearance", array_digest(frames))
-        hit = stream._cache_get("appearance", key)
+        hit = stream._cache_get("appearance", key, frames=len(frames))
         if hit is not None:
             return hit[0]["features"].astype(np.float32)
         features = stream._call("appearance", lambda: self.stages["appearance"].features(video), frames=len(frames),
@@ -205,6 +205,7 @@ class Pipeline:
             "timings_s": {k: round(v, 4) for k, v in stream.timings.items()},
             "seconds": round(time.perf_counter() - started, 3),
             "cached": stream.cached,
+            "frames_from_cache": stream.from_cache,
             "triplets": _summarise_triplets(stream.triplets),
             **checks.finish(),
             "config": self.config_digest(),

@@ -95,3 +95,12 @@ def test_prune_removes_old_entries_then_the_least_recently_used_down_to_a_size(t
     removed = cache.prune(max_size=size - 1)
     assert [e.path for e in removed] == [b] and a.exists() and c.exists()
     assert cache.prune(max_size=0) and cache.entries() == []
+
+
+def test_remove_an_entry(tmp_path):
+    cache = Cache(tmp_path)
+    cache.save("rigidity", "ab" * 32 + "-state", {"x": np.zeros(3)})
+    assert cache.exists("rigidity", "ab" * 32 + "-state")
+    cache.remove("rigidity", "ab" * 32 + "-state")
+    cache.remove("rigidity", "ab" * 32 + "-state")  # gone already: nothing to do
+    assert not cache.exists("rigidity", "ab" * 32 + "-state")
