@@ -23,7 +23,7 @@ from .graph import GRAPH, check_stage, stage_kind
 from .inputs import SequenceSource, discover_sequences, iter_frames, processing_size
 from .io import atomic_write_bytes
 from .outputs import SequenceOutputs, SequenceWriter, remove_partials
-from .progress import progress_enabled
+from . import progress
 from .sanity import SequenceChecks
 from .spec import Spec
 from .stream import FrameItem, SequenceStream, memory_estimate, video_digest
@@ -179,7 +179,8 @@ class Pipeline:
                                 fps=spec.output.fps or source.fps)
         checks = SequenceChecks(source.name)
         count = 0
-        bar = _bar(source.name, source.count)
+        report = progress.current()
+        report.start(source.name, source.count)
         try:
             write_time = 0.0
             for item in stream.items(items(), threads=spec.run.threads):
@@ -188,15 +189,13 @@ class Pipeline:
                 write_time += time.perf_counter() - start
                 checks.observe(item.t, item.motion_flow, item.mask)
                 count += 1
-                if bar is not None:
-                    bar.update(1)
+                report.advance(source.name)
             writer.close()
         except BaseException:
             writer.abort()
             raise
         finally:
-            if bar is not None:
-                bar.close()
+            report.finish(source.name)
         stream.timings["write"] = write_time
         return {
             "frames": count,
@@ -258,11 +257,13 @@ class Pipeline:
             log.info("%s", stage_times_line(name, entry))
             log.info("%d/%d sequences done, %.1f s elapsed", len(done), len(todo), time.time() - started)
 
-        if workers <= 1:
-            for source in todo:
-                finished(source.name, self.run_sequence(source))
-        else:
-            run_in_workers(self, todo, workers, finished)
+        total = sum(s.count for s in todo) if all(s.count for s in todo) else None
+        with progress.RunProgress(total).active():
+            if workers <= 1:
+                for source in todo:
+                    finished(source.name, self.run_sequence(source))
+            else:
+                run_in_workers(self, todo, workers, finished)
         manifest["total_seconds"] = round(time.time() - started, 3)
         _write_manifest(spec.output.dir / "run.json", manifest)  # the record is kept whatever scoring does
         if spec.evaluate is not None:
@@ -335,14 +336,6 @@ def warn_about_memory(spec: Spec, sources: list[SequenceSource]) -> None:
         warning = memory_warning(spec, source)
         if warning:
             log.warning(warning)
-
-
-def _bar(name: str, total: int):
-    if not progress_enabled():
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total or None, desc=name, unit="frame", leave=False, dynamic_ncols=True)
 
 
 def _read_record(path: Path) -> dict:

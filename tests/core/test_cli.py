@@ -176,3 +176,38 @@ def test_the_summary_says_how_many_frames_a_max_frames_run_scored(capsys, tmp_pa
                                 "b": {"frames_scored": 3, "frames_in_ground_truth": 33}}}
     _print_summary({"sequences": {}, "evaluation": evaluation}, tmp_path, quiet=False)
     assert "J mean 0.500, 6 of 56 ground-truth frames scored (input.max_frames 4)" in capsys.readouterr().out
+
+
+def _geometry_spec(path, source, out, **run):
+    path.write_text(textwrap.dedent(f"""
+        preset: geometry
+        input: {{path: {source}, scale: 1.0}}
+        stages: {{rigidity: {{max_points: 100}}}}
+        output: {{dir: {out}, save: [ed, flow]}}
+        run: {{workers: 1, chunk: 4, lag: 4}}
+        cache: {{enabled: false}}
+    """))
+    return path
+
+
+def test_off_a_terminal_a_long_sequence_logs_progress_lines_and_q_silences_them(frames_dir, tmp_path, capsys,
+                                                                               monkeypatch):
+    import re
+
+    from eponet.cli import main
+    from eponet.core import progress
+
+    monkeypatch.setattr(progress, "PROGRESS_INTERVAL_S", 0.0)  # every sequence is "long": a line per frame
+    spec = _geometry_spec(tmp_path / "s.yaml", frames_dir, tmp_path / "out")
+    assert main(["run", str(spec)]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "frames/s" in line]
+    assert len(lines) == 5, err
+    assert re.fullmatch(r"eponet: INFO: clip: 1/5 frames, [\d.]+ frames/s, ETA \d+ s", lines[0]), lines[0]
+    assert lines[-1].startswith("eponet: INFO: clip: 5/5 frames, ") and lines[-1].endswith(", ETA 0 s")
+    assert any(re.match(r"eponet: INFO: clip: flow [\d.]+ s, trajectories .*; 5 frames in ", l) for l in err.splitlines())
+    assert "\r" not in err and "%|" not in err  # no bar off a terminal
+
+    assert main(["run", str(spec), "-q", "--set", f"output.dir={tmp_path / 'quiet'}"]) == 0
+    assert capsys.readouterr().err == ""
+
