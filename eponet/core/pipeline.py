@@ -21,7 +21,7 @@ from .cache import Cache, code_fingerprint, content_key
 from .errors import EponetError, OutputError, StageError
 from .graph import GRAPH, check_stage, stage_kind
 from .inputs import SequenceSource, discover_sequences, iter_frames, processing_size
-from .io import atomic_write_bytes
+from .io import atomic_write_bytes, is_no_space, no_space_error
 from .outputs import SequenceOutputs, SequenceWriter, remove_partials
 from . import progress
 from .sanity import SequenceChecks
@@ -361,6 +361,8 @@ def _write_manifest(path: Path, manifest: dict) -> None:
     try:
         atomic_write_bytes(path, json.dumps(manifest, indent=2, default=_json_default).encode())
     except OSError as exc:
+        if is_no_space(exc):
+            raise no_space_error(path.parent, f"writing {path.name}") from None
         raise OutputError(f"{path}: cannot write the run manifest ({exc.strerror or exc})") from None
 
 

@@ -97,6 +97,28 @@ def test_prune_removes_old_entries_then_the_least_recently_used_down_to_a_size(t
     assert cache.prune(max_size=0) and cache.entries() == []
 
 
+def test_a_full_cache_disk_is_one_warning_and_the_run_goes_on(tmp_path, monkeypatch, caplog):
+    import contextlib
+    import errno
+    import logging
+
+    from eponet.core import cache as cache_module
+
+    @contextlib.contextmanager
+    def full_disk(path):
+        raise OSError(errno.ENOSPC, "No space left on device")
+        yield
+
+    cache = Cache(tmp_path)
+    cache.save("flow", "aa" * 32, {"x": np.zeros(3)})
+    monkeypatch.setattr(cache_module, "atomic_path", full_disk)
+    with caplog.at_level(logging.WARNING, logger="eponet.core.cache"):
+        for key in ("bb", "cc", "dd"):
+            cache.save("flow", key * 32, {"x": np.zeros(3)})
+    assert caplog.messages == [f"cache {tmp_path}: no space left on its disk; this run stores no more results there"]
+    assert cache.load("flow", "aa" * 32) is not None and cache.load("flow", "bb" * 32) is None  # reads go on
+
+
 def test_remove_an_entry(tmp_path):
     cache = Cache(tmp_path)
     cache.save("rigidity", "ab" * 32 + "-state", {"x": np.zeros(3)})
