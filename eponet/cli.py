@@ -70,7 +70,7 @@ def _add_spec_args(parser: argparse.ArgumentParser) -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     from .core.cache import Cache
     from .core.pipeline import Pipeline
-    from .core.progress import set_quiet
+    from .core.progress import redirect_logging, set_quiet
     from .core.spec import load_spec
 
     set_quiet(args.quiet)
@@ -78,7 +78,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     cache_dir = Path(args.cache_dir) if args.cache_dir else spec.cache_dir
     cache = Cache(cache_dir, enabled=spec.cache_enabled and not args.no_cache)
     invocation = {"overrides": list(args.overrides), "no_cache": args.no_cache, "cache_dir": args.cache_dir}
-    manifest = Pipeline(spec, cache=cache).run(invocation=invocation)
+    with redirect_logging():  # log lines above the progress bars, not through them
+        manifest = Pipeline(spec, cache=cache).run(invocation=invocation)
     _print_summary(manifest, spec.output.dir, quiet=args.quiet)
     return 0
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .io import atomic_path
+from .io import atomic_path, is_no_space
 
 __all__ = ["Cache", "CacheEntry", "content_key", "array_digest", "code_fingerprint", "factory_module",
            "STALE_TEMP_SECONDS"]
@@ -129,6 +129,7 @@ class Cache:
         self.root = Path(root)
         self.enabled = enabled
         self.hits: list[str] = []
+        self.full = False  # a write found the disk full: no more writes
         if enabled:
             self.remove_stale_temps()
 
@@ -160,7 +161,7 @@ class Cache:
         return self.enabled and self._path(stage, key).is_file()
 
     def save(self, stage: str, key: str, arrays: dict[str, np.ndarray], meta: dict | None = None) -> None:
-        if not self.enabled:
+        if not self.enabled or self.full:
             return
         path = self._path(stage, key)
         try:
@@ -168,7 +169,19 @@ class Cache:
                 with open(tmp, "wb") as handle:
                     np.savez(handle, __meta__=np.array(json.dumps(meta or {})), **arrays)
         except Exception as exc:  # the cache is an optimisation: a full disk must not fail the run
-            log.warning("could not write cache entry %s (%s)", path, exc)
+            if is_no_space(exc):  # said once; the run goes on without storing more
+                self.full = True
+                log.warning("cache %s: no space left on its disk; this run stores no more results there", self.root)
+            else:
+                log.warning("could not write cache entry %s (%s)", path, exc)
+
+    def remove(self, stage: str, key: str) -> None:
+        """Remove an entry if it is there (a checkpoint superseded by the complete result)."""
+        if self.enabled:
+            try:
+                self._path(stage, key).unlink(missing_ok=True)
+            except OSError as exc:
+                log.warning("could not remove cache entry %s (%s)", self._path(stage, key), exc)
 
     # -- maintenance (``eponet cache info | prune``) ----------------------------------------------
     def entries(self) -> list[CacheEntry]:

@@ -83,9 +83,13 @@ class MissingWeights(EponetError):
 
 
 class OutputError(EponetError):
-    """The output folder cannot be written."""
+    """The output folder cannot be written; ``errno`` is the failed write's (e.g. ``ENOSPC``), when known."""
 
     exit_code = 2
+
+    def __init__(self, message: str, *, errno: int | None = None):
+        super().__init__(message)
+        self.errno = errno
 
 
 class UsageError(EponetError):

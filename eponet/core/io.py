@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import tempfile
@@ -29,6 +30,9 @@ __all__ = [
     "honour_umask",
     "atomic_write_bytes",
     "save_npy",
+    "NO_SPACE_ERRNOS",
+    "is_no_space",
+    "no_space_error",
 ]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".ppm", ".pgm", ".tif", ".tiff")
@@ -180,7 +184,7 @@ def atomic_path(path: str | Path) -> Iterator[str]:
         os.close(fd)
         honour_umask(tmp)
     except OSError as exc:
-        raise OutputError(f"{path.parent}: cannot write output ({exc.strerror or exc})") from None
+        raise OutputError(f"{path.parent}: cannot write output ({exc.strerror or exc})", errno=exc.errno) from None
     try:
         yield tmp
         os.replace(tmp, path)
@@ -188,6 +192,25 @@ def atomic_path(path: str | Path) -> Iterator[str]:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+#: ``errno`` values of a write that failed because the disk (or the user's quota) is full.
+NO_SPACE_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+
+
+def is_no_space(exc: BaseException) -> bool:
+    """Whether ``exc`` (an ``OSError``, PyAV's error or an :class:`OutputError`) says the disk is full."""
+    return getattr(exc, "errno", None) in NO_SPACE_ERRNOS
+
+
+def no_space_error(out_dir: str | Path, doing: str) -> OutputError:
+    """The one line of a full output disk, naming ``out_dir`` and what was being written (``doing``).
+
+    >>> print(no_space_error("runs/dog", "writing dog frame 00012"))
+    runs/dog: no space left on the output disk (writing dog frame 00012); free some space or set output.dir to another disk and run again (finished sequences are kept and skipped)
+    """
+    return OutputError(f"{out_dir}: no space left on the output disk ({doing}); free some space or set output.dir to "
+                       "another disk and run again (finished sequences are kept and skipped)", errno=errno.ENOSPC)
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:

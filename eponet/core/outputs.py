@@ -15,7 +15,7 @@ import numpy as np
 
 from .errors import OutputError
 from .imaging import flow_to_color, heat_map, overlay_mask, resize_flow, resize_map
-from .io import atomic_path, honour_umask, save_npy, write_flo, write_mask_png
+from .io import atomic_path, honour_umask, is_no_space, no_space_error, save_npy, write_flo, write_mask_png
 from .progress import track
 from .types import FlowPair, Video
 
@@ -66,6 +66,8 @@ class SequenceWriter:
             self.folder = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".partial", dir=self.out_dir))
             honour_umask(self.folder)  # it becomes the sequence's folder
         except OSError as exc:
+            if is_no_space(exc):
+                raise no_space_error(self.out_dir, f"starting {name}") from None
             raise OutputError(f"output.dir: cannot write to {self.out_dir} ({exc.strerror or exc})") from None
         self._overlay = None  # (container, stream) of PyAV
         self._overlay_tmp = None
@@ -90,7 +92,11 @@ class SequenceWriter:
                 _write_png(folder / "panels" / f"{stem}.png", panel(item, factor=self.factor), rgb=True)
             if "overlay" in save:
                 self._write_overlay_frame(item)
-        except (OSError, av.FFmpegError) as exc:  # e.g. the disk is full
+        except (OSError, av.FFmpegError, OutputError) as exc:
+            if is_no_space(exc):
+                raise no_space_error(self.out_dir, f"writing {self.name} frame {stem}") from None
+            if isinstance(exc, OutputError):
+                raise
             raise OutputError(f"{folder.parent / self.name}: cannot write frame {stem} ({_reason(exc)})") from None
 
     def _write_overlay_frame(self, item) -> None:
@@ -127,6 +133,8 @@ class SequenceWriter:
             self.folder.rename(final)
         except (OSError, av.FFmpegError) as exc:
             self.abort()
+            if is_no_space(exc):
+                raise no_space_error(self.out_dir, f"finishing {self.name}") from None
             raise OutputError(f"{self.out_dir / self.name}: cannot finish the outputs ({_reason(exc)})") from None
         return final
 

@@ -22,9 +22,9 @@ from .errors import EponetError, OutputError, StageError
 from .graph import GRAPH, check_stage, stage_kind
 from .html_report import write_report
 from .inputs import SequenceSource, discover_sequences, iter_frames, processing_size
-from .io import atomic_write_bytes
+from .io import atomic_write_bytes, is_no_space, no_space_error
 from .outputs import SequenceOutputs, SequenceWriter, remove_partials
-from .progress import progress_enabled
+from . import progress
 from .sanity import SequenceChecks
 from .spec import Spec
 from .stream import FrameItem, SequenceStream, memory_estimate, video_digest
@@ -136,7 +136,7 @@ class Pipeline:
         from .cache import array_digest
 
         key = self.key("appearance", array_digest(frames))
-        hit = stream._cache_get("appearance", key)
+        hit = stream._cache_get("appearance", key, frames=len(frames))
         if hit is not None:
             return hit[0]["features"].astype(np.float32)
         features = stream._call("appearance", lambda: self.stages["appearance"].features(video), frames=len(frames),
@@ -181,7 +181,8 @@ class Pipeline:
                                 fps=spec.output.fps or source.fps)
         checks = SequenceChecks(source.name)
         count = 0
-        bar = _bar(source.name, source.count)
+        report = progress.current()
+        report.start(source.name, source.count)
         try:
             write_time = 0.0
             for item in stream.items(items(), threads=spec.run.threads):
@@ -190,15 +191,13 @@ class Pipeline:
                 write_time += time.perf_counter() - start
                 checks.observe(item.t, item.motion_flow, item.mask)
                 count += 1
-                if bar is not None:
-                    bar.update(1)
+                report.advance(source.name)
             writer.close()
         except BaseException:
             writer.abort()
             raise
         finally:
-            if bar is not None:
-                bar.close()
+            report.finish(source.name)
         stream.timings["write"] = write_time
         return {
             "frames": count,
@@ -207,6 +206,7 @@ class Pipeline:
             "timings_s": {k: round(v, 4) for k, v in stream.timings.items()},
             "seconds": round(time.perf_counter() - started, 3),
             "cached": stream.cached,
+            "frames_from_cache": stream.from_cache,
             "triplets": _summarise_triplets(stream.triplets),
             **checks.finish(),
             "config": self.config_digest(),
@@ -259,11 +259,13 @@ class Pipeline:
             log.info("%s", stage_times_line(name, entry))
             log.info("%d/%d sequences done, %.1f s elapsed", len(done), len(todo), time.time() - started)
 
-        if workers <= 1:
-            for source in todo:
-                finished(source.name, self.run_sequence(source))
-        else:
-            run_in_workers(self, todo, workers, finished)
+        total = sum(s.count for s in todo) if all(s.count for s in todo) else None
+        with progress.RunProgress(total).active():
+            if workers <= 1:
+                for source in todo:
+                    finished(source.name, self.run_sequence(source))
+            else:
+                run_in_workers(self, todo, workers, finished)
         manifest["total_seconds"] = round(time.time() - started, 3)
         _write_manifest(spec.output.dir / "run.json", manifest)  # the record is kept whatever scoring does
         if spec.evaluate is not None:
@@ -344,14 +346,6 @@ def warn_about_memory(spec: Spec, sources: list[SequenceSource]) -> None:
             log.warning(warning)
 
 
-def _bar(name: str, total: int):
-    if not progress_enabled():
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total or None, desc=name, unit="frame", leave=False, dynamic_ncols=True)
-
-
 def _read_record(path: Path) -> dict:
     """An earlier run's ``run.json``; one that cannot be read is kept aside as ``run-unreadable-<time>.json``."""
     if not path.is_file():
@@ -375,6 +369,8 @@ def _write_manifest(path: Path, manifest: dict) -> None:
     try:
         atomic_write_bytes(path, json.dumps(manifest, indent=2, default=_json_default).encode())
     except OSError as exc:
+        if is_no_space(exc):
+            raise no_space_error(path.parent, f"writing {path.name}") from None
         raise OutputError(f"{path}: cannot write the run manifest ({exc.strerror or exc})") from None
 
 

@@ -44,7 +44,9 @@ class TrajectoryBuilder(Protocol):
 
         A builder may also offer ``stream(shape) -> TrajectoryStream`` (shape ``(H, W)``): then the run loop
         carries its live state from chunk to chunk and never holds the whole video's trajectories; without
-        it the loop calls ``build`` on the whole video's flow (memory grows with the video)."""
+        it the loop calls ``build`` on the whole video's flow (memory grows with the video). A stream whose
+        attributes are numpy arrays and plain values (as the built-in one's are) is checkpointed, so that a killed
+        run resumes the video (:mod:`eponet.core.rigidity_stream`)."""
 
 
 @runtime_checkable
@@ -74,7 +76,8 @@ class RigidityModel(Protocol):
         A stage that learns from earlier groups (guided sampling) may also have ``new_history()``: the loop
         then calls it once per video and passes the object to every window as ``score(..., history=h,
         track_ids=ids)`` (``ids``: int64 ``(T,)``, the window's trajectories' global ids, ascending), and calls
-        ``h.keep(alive_ids)`` when trajectories end, so that windows see what a whole-video call would."""
+        ``h.keep(alive_ids)`` when trajectories end, so that windows see what a whole-video call would. The
+        history is checkpointed with the trajectories' state when its attributes are arrays and plain values."""
 
 
 @runtime_checkable

@@ -22,6 +22,11 @@ composition of the same stages computes (``tests/core/test_stream.py``); shorter
 the lag cuts off (a rigidity stage with ``new_history()``, as the built-in ones, carries guided sampling's
 memory from window to window, so its groups are sampled as in the whole video).
 
+Resume: the ED maps are cached in blocks of ``chunk`` frames as they are painted, with a checkpoint of the
+trajectory and rigidity state (:mod:`eponet.core.rigidity_stream`) after a block now and then, so that a run killed
+in the middle of a long video takes the frames before the checkpoint from the cache and continues from there,
+computing exactly what an uninterrupted run computes (``tests/core/test_rigidity_stream.py``).
+
 Memory: about ``chunk + lag + 30`` frames of flow, trajectory records and ED maps at the processing size, plus
 ``chunk`` full-size frames (and the fusion's window) at a time; :func:`memory_estimate` puts a number on it.
 """
@@ -35,17 +40,19 @@ import threading
 import time
 import zlib
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Iterable, Iterator
 
 import numpy as np
 
 from .cache import array_digest
 from .errors import EponetError, StageError
-from .graph import check_output, stage_kind
-from .imaging import fill_from_neighbourhood, resize_map
+from .graph import KINDS, check_output
+from .imaging import resize_map
 from .motion import ED_TARGET, ED_WINDOW, FLOW_SCALE, ed_frame_sample, ed_window_scale, normalise_ed
-from .types import FlowPair, TrackFrame, Video, assemble_trajectories
+from . import rigidity_stream
+from .rigidity_stream import GeometryScorer
+from .types import FlowPair, Video
 
 __all__ = ["FrameItem", "SequenceStream", "video_digest", "prefetch", "memory_estimate"]
 
@@ -111,6 +118,10 @@ def video_digest(frames: Iterable[np.ndarray]) -> str:
     return digest.hexdigest()
 
 
+def _graph_order(kind: str) -> int:
+    return KINDS.index(kind) if kind in KINDS else len(KINDS)
+
+
 class _Stop:
     pass
 
@@ -152,44 +163,6 @@ def prefetch(iterator: Iterator, depth: int, name: str) -> Iterator:
         thread.join(timeout=5)
 
 
-@dataclass
-class _Accumulator:
-    """Summed distances and group counts of the trajectories still needed, by ascending global id."""
-
-    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    sums: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-
-    def add(self, ids: np.ndarray, sums: np.ndarray, counts: np.ndarray) -> None:
-        union = np.union1d(self.ids, ids)
-        new_sums, new_counts = np.zeros(len(union)), np.zeros(len(union), np.int64)
-        old = np.searchsorted(union, self.ids)
-        new_sums[old], new_counts[old] = self.sums, self.counts
-        at = np.searchsorted(union, ids)
-        new_sums[at] += sums
-        new_counts[at] += counts
-        self.ids, self.sums, self.counts = union, new_sums, new_counts
-
-    def keep(self, alive: np.ndarray) -> None:
-        mask = np.isin(self.ids, alive, assume_unique=False)
-        self.ids, self.sums, self.counts = self.ids[mask], self.sums[mask], self.counts[mask]
-
-    def means(self, labels: np.ndarray) -> np.ndarray:
-        """Mean distance of the trajectory covering each pixel (NaN where none was scored)."""
-        at = np.clip(np.searchsorted(self.ids, labels), 0, max(len(self.ids) - 1, 0))
-        if not len(self.ids):
-            return np.full(labels.shape, np.nan, np.float32)
-        found = self.ids[at] == labels
-        counts = np.where(found, self.counts[at], 0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            means = np.where(counts > 0, (self.sums[at] / np.maximum(counts, 1)).astype(np.float32), np.nan)
-        return means.astype(np.float32)
-
-    def median(self) -> float:
-        scored = self.counts > 0
-        return float(np.median((self.sums[scored] / self.counts[scored]).astype(np.float32))) if scored.any() else 0.0
-
-
 class SequenceStream:
     """Runs the stages of a :class:`~eponet.core.pipeline.Pipeline` over one sequence as a chain of generators
     of :class:`FrameItem`; :meth:`items` yields every frame once all stages are done with it."""
@@ -209,6 +182,8 @@ class SequenceStream:
         self.triplets: list[dict] = []
         self._misses: set[str] = set()
         self._hits: set[str] = set()
+        #: frames (flow: pairs) of each cached stage that came from the cache
+        self.from_cache: dict[str, int] = {}
 
     # -- the chain ------------------------------------------------------------------------------
     def items(self, frames: Iterator[FrameItem], *, threads: bool = True) -> Iterator[FrameItem]:
@@ -233,6 +208,8 @@ class SequenceStream:
         if "refiner" in stages:
             stream = self._per_frame("refiner", stream, self._refine)
         yield from stream
+        # in graph order, whichever stage ran first (a resumed run may start with its trajectories)
+        self.timings = {kind: self.timings[kind] for kind in sorted(self.timings, key=_graph_order)}
         for kind in ("flow", "rigidity", "appearance"):
             if kind in self._hits and kind not in self._misses:
                 self.cached += ["trajectories", "rigidity"] if kind == "rigidity" else [kind]
@@ -259,9 +236,12 @@ class SequenceStream:
             raise StageError(f"{self.name}: {problem}")
         return value
 
-    def _cache_get(self, kind: str, key: str):
+    def _cache_get(self, kind: str, key: str, *, frames: int = 0):
+        """Entry ``key`` of stage ``kind`` (``None`` on a miss); a hit counts ``frames`` in :attr:`from_cache`."""
         hit = self.pipeline.cache.load(kind, key)
         (self._hits if hit is not None else self._misses).add(kind)
+        if hit is not None and frames:
+            self.from_cache[kind] = self.from_cache.get(kind, 0) + frames
         return hit
 
     # -- pairs: flow ----------------------------------------------------------------------------
@@ -288,7 +268,7 @@ class SequenceStream:
         stems = [item.stem for item in items]
         video = Video(self.name, frames, stems, self.size)
         key = self.pipeline.key("flow", array_digest(frames), stems=stems, size=self.size)
-        hit = self._cache_get("flow", key)
+        hit = self._cache_get("flow", key, frames=len(items) - 1)
         if hit is not None:
             flow = FlowPair(hit[0]["forward"], hit[0]["backward"])
         else:
@@ -301,9 +281,11 @@ class SequenceStream:
 
     # -- state + groups: trajectories and rigidity ----------------------------------------------
     def _geometry(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
-        """ED maps of every frame: from the cache when a complete earlier run of the same video and settings left
-        them (blocks of ``chunk`` frames and an index written last, so a run killed half-way never counts), else
-        scored by :meth:`_scored_geometry` and saved block by block."""
+        """ED maps of every frame, through the cache: saved in blocks of ``chunk`` frames as they are painted, each
+        block followed by a checkpoint of the scorer's state (:class:`~eponet.core.rigidity_stream.GeometryScorer`)
+        and the whole video by an index, written last. A complete earlier run (an index) serves every map; a run
+        killed half-way left blocks and a checkpoint: the frames of those blocks take their maps from the cache and
+        the scorer resumes from the checkpoint, computing what an uninterrupted run computes."""
         cache = self.pipeline.cache
         key = None
         if self.digest is not None and cache.enabled:
@@ -316,24 +298,87 @@ class SequenceStream:
                 self.triplets = index[1].get("triplets", [])
                 yield from self._cached_geometry(stream, key)
                 return
-            self._misses.add("rigidity")
+        if not hasattr(self.stages["trajectories"], "stream"):
+            if key is not None:
+                self._misses.add("rigidity")
+            yield from self._save_blocks(self._whole_geometry(stream), key, None)
+            return
+        scorer = GeometryScorer(self)
+        start = self._resume(scorer, key) if key is not None else 0
+
+        def scored():
+            last = -1
+            for item in self._cached_geometry(stream, key, stop=start) if start else stream:
+                last = item.t
+                if item.t < start:
+                    yield item
+                    continue
+                scorer.feed(item)
+                yield from scorer.ready()
+            yield from scorer.finish()
+            if key is not None:
+                (self._hits if start else self._misses).add("rigidity")
+                if start <= last:  # frames computed besides those from the cache
+                    self._misses.add("rigidity")
+
+        yield from self._save_blocks(scored(), key, scorer, first_block=start // self.chunk)
+
+    def _save_blocks(self, painted: Iterator[FrameItem], key: str | None, scorer, *, first_block: int = 0):
+        """Pass ``painted`` on, saving its ED maps in blocks of ``chunk`` frames (from block ``first_block``),
+        a block followed by ``scorer``'s checkpoint when the last one is
+        :data:`~eponet.core.rigidity_stream.CHECKPOINT_SECONDS` old, and the index (which replaces the checkpoint)
+        at the end."""
+        cache = self.pipeline.cache
         block: list[np.ndarray] = []
-        count = 0
-        for item in self._scored_geometry(stream):
+        count = first_block
+        checkpointed = time.monotonic()
+        for item in painted:
+            if key is None or item.t < first_block * self.chunk:
+                yield item
+                continue
             block.append(item.ed)
-            if key is not None and len(block) == self.chunk:
+            if len(block) == self.chunk:
                 cache.save("rigidity", f"{key}-{count}", {"ed": np.stack(block)})
                 block, count = [], count + 1
+                if scorer is not None and time.monotonic() - checkpointed >= rigidity_stream.CHECKPOINT_SECONDS:
+                    saved = scorer.checkpoint()
+                    if saved is not None:
+                        cache.save("rigidity", f"{key}-state", saved[0], {**saved[1], "blocks": count})
+                    checkpointed = time.monotonic()
             yield item
         if key is not None:
             if block:
                 cache.save("rigidity", f"{key}-{count}", {"ed": np.stack(block)})
                 count += 1
             cache.save("rigidity", f"{key}-index", {}, {"blocks": count, "triplets": self.triplets})
+            cache.remove("rigidity", f"{key}-state")
 
-    def _cached_geometry(self, stream: Iterator[FrameItem], key: str) -> Iterator[FrameItem]:
+    def _resume(self, scorer, key: str) -> int:
+        """The first frame a killed run of this video left unpainted, with ``scorer`` restored to its state there
+        (0, scorer untouched, without a usable checkpoint)."""
+        cache = self.pipeline.cache
+        saved = cache.load("rigidity", f"{key}-state")
+        if saved is None:
+            return 0
+        arrays, meta = saved
+        blocks = int(meta.get("blocks", 0))
+        if meta.get("painted") != blocks * self.chunk or not all(cache.exists("rigidity", f"{key}-{k}")
+                                                                 for k in range(blocks)):
+            return 0
+        start = scorer.restore(arrays, meta)
+        if not start:
+            return 0
+        log.info("%s: resuming the geometry at frame %d (from the cache)", self.name, start)
+        return start
+
+    def _cached_geometry(self, stream: Iterator[FrameItem], key: str, *, stop: float = float("inf")):
+        """``stream`` with the ED maps of frames before ``stop`` read from the cache's blocks (every later frame
+        passed on as it is)."""
         loaded, maps = -1, None
         for item in stream:
+            if item.t >= stop:
+                yield item
+                continue
             block = item.t // self.chunk
             if block != loaded:
                 hit = self.pipeline.cache.load("rigidity", f"{key}-{block}")
@@ -342,115 +387,23 @@ class SequenceStream:
                                      "--no-cache or remove it")
                 loaded, maps = block, hit[0]["ed"]
             item.ed = maps[item.t % self.chunk]
+            self.from_cache["rigidity"] = self.from_cache.get("rigidity", 0) + 1
             yield item
 
-    def _scored_geometry(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
+    def _whole_geometry(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
+        """A builder without ``stream()``: its flow, built at the end (memory grows with the video)."""
         builder, rigidity = self.stages["trajectories"], self.stages["rigidity"]
-        views, stride = int(getattr(rigidity, "views", 3)), int(getattr(rigidity, "stride", 1))
-        span = (views - 1) * stride
         rng = np.random.default_rng([self.spec.seed, zlib.crc32(self.name.encode())])
-        state = None
-        whole: list = []  # a builder without stream(): its flow, built at the end (memory grows with the video)
-        records: dict[int, TrackFrame] = {}
-        pending: deque[FrameItem] = deque()
-        acc = _Accumulator()
-        history = rigidity.new_history() if hasattr(rigidity, "new_history") else None
-        direct: dict[int, np.ndarray] = {}
-        g_next = 0  # first frame group not yet scored
-        last_t = -1
-        for item in stream:
-            last_t = item.t
-            pending.append(item)
-            if not hasattr(builder, "stream"):
-                whole.append(item)
-                continue
-            if state is None:
-                state = self._timed("trajectories", lambda: builder.stream(self.shape))
-                records[0] = self._call("trajectories", state.first, frames=None, shape=self.shape)
-            if item.forward is not None:
-                records[item.t + 1] = self._call("trajectories", lambda: state.push(item.forward, item.backward),
-                                                 frames=None, shape=self.shape)
-                available = item.t + 1
-                while g_next + self.chunk - 1 + span <= available:
-                    self._score_window(records, pending, g_next, g_next + self.chunk + span, rng, acc, direct,
-                                       owned=self.chunk, history=history)
-                    g_next += self.chunk
-                    self._forget(records, pending, acc, g_next, history)
-            while pending and pending[0].t + self.lag < g_next and pending[0].t + 1 in records:
-                yield self._paint(pending.popleft(), records, acc, direct)
-        frames = last_t + 1
-        if whole:
-            flow = FlowPair(np.stack([i.forward for i in whole[:-1]]), np.stack([i.backward for i in whole[:-1]]))
-            tracks = self._call("trajectories", lambda: builder.build(flow), frames=frames, shape=self.shape)
-            result = self._call("rigidity", lambda: rigidity.score(tracks, flow, rng), frames=frames, shape=self.shape,
-                                trajectories=tracks.count)
-            self.triplets += list(result.triplets)
-            for item in whole:
-                item.ed = result.ed[item.t]
-            yield from whole
-            return
-        if frames - 1 - span >= g_next or g_next == 0:
-            self._score_window(records, pending, g_next, frames, rng, acc, direct, owned=frames - g_next,
-                               history=history)
-        while pending:
-            yield self._paint(pending.popleft(), records, acc, direct)
-
-    def _score_window(self, records, pending, first, stop, rng, acc, direct, *, owned, history=None) -> None:
-        """Score frames ``first .. stop - 1`` (groups starting at ``first .. first + owned - 1``), passing the
-        stage's ``history`` (see :class:`~eponet.core.protocols.RigidityModel`) when it keeps one."""
-        rigidity = self.stages["rigidity"]
-        tracks, ids = self._timed("trajectories", lambda: assemble_trajectories([records[t] for t in range(first, stop)]))
-        base = pending[0].t
-        pairs = [pending[t - base] for t in range(first, stop - 1)]  # frame stop - 1 may not have arrived yet
-        flow = FlowPair(np.stack([i.forward for i in pairs]), np.stack([i.backward for i in pairs]))
-        memory = {} if history is None else {"history": history, "track_ids": ids}
-        result = self._call("rigidity", lambda: rigidity.score(tracks, flow, rng, **memory), frames=stop - first,
-                            shape=self.shape, trajectories=tracks.count)
-        infos = [dict(info) for info in result.triplets]
-        groups = [info.get("frames") for info in infos]
-        for info in infos:
-            if isinstance(info.get("frames"), list):
-                info["frames"] = [int(f) + first for f in info["frames"]]
-        self.triplets += infos
-        if result.per_trajectory is None or any(not isinstance(g, list) or not g for g in groups):
-            for t in range(first, min(stop, first + owned)):  # the window's own maps, as they are
-                direct[t] = result.ed[t - first]
-            return
-        start = tracks.start.astype(np.int64)
-        end = start + tracks.length - 1
-        counts = np.zeros(tracks.count, np.int64)
-        for info, group in zip(infos, groups):
-            if info.get("model") != "failed":
-                counts += (start <= group[0]) & (end >= group[-1])
-        means = np.asarray(result.per_trajectory, np.float64)
-        scored = counts > 0
-        acc.add(ids[scored], means[scored] * counts[scored], counts[scored])
-
-    def _forget(self, records, pending, acc, g_next, history=None) -> None:
-        oldest = min(g_next, pending[0].t if pending else g_next)
-        for t in [t for t in records if t < oldest]:
-            del records[t]
-        if records:
-            alive = np.unique(np.concatenate([records[t].ids for t in records]))
-            acc.keep(alive)
-            if history is not None:
-                history.keep(alive)
-
-    def _paint(self, item: FrameItem, records, acc: _Accumulator, direct) -> FrameItem:
-        if item.t in direct:
-            item.ed = direct.pop(item.t)
-        else:
-            def paint():
-                ed = acc.means(records[item.t].labels)
-                valid = ~np.isnan(ed)
-                if valid.all():
-                    return ed
-                if not valid.any():
-                    log.warning("%s: frame %s: no scored trajectory; using the median distance", self.name, item.stem)
-                return fill_from_neighbourhood(ed, valid, acc.median())
-
-            item.ed = self._timed("rigidity", paint)
-        return item
+        whole = list(stream)
+        frames = len(whole)
+        flow = FlowPair(np.stack([i.forward for i in whole[:-1]]), np.stack([i.backward for i in whole[:-1]]))
+        tracks = self._call("trajectories", lambda: builder.build(flow), frames=frames, shape=self.shape)
+        result = self._call("rigidity", lambda: rigidity.score(tracks, flow, rng), frames=frames, shape=self.shape,
+                            trajectories=tracks.count)
+        self.triplets += list(result.triplets)
+        for item in whole:
+            item.ed = result.ed[item.t]
+        yield from whole
 
     # -- the ED scale and the motion images -----------------------------------------------------
     def _ed_scale(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:

@@ -9,6 +9,7 @@ import os
 from .cache import Cache
 from .errors import EponetError
 from .inputs import SequenceSource
+from .progress import listening
 from .spec import Spec
 
 __all__ = ["worker_count", "run_in_workers"]
@@ -24,14 +25,15 @@ def worker_count(setting, sequences: int) -> int:
 _WORKER = None  # the worker process's Pipeline
 
 
-def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int) -> None:
+def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int, reports) -> None:
     global _WORKER
     _limit_threads(threads)
-    from .progress import set_quiet
+    from .progress import forward_to, set_quiet
 
     from .pipeline import Pipeline
 
-    set_quiet(True)
+    set_quiet(True)  # the parent draws the bars and writes the lines
+    forward_to(reports)
     _WORKER = Pipeline(spec, cache=Cache(cache_root, enabled=cache_enabled))
 
 
@@ -85,8 +87,10 @@ def run_in_workers(pipeline, sources: list[SequenceSource], workers: int, finish
     threads = max(1, (os.cpu_count() or 1) // workers)
     context = multiprocessing.get_context("spawn")  # no fork of a process whose torch/OpenCV threads run
     cache = pipeline.cache
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker,
-                             initargs=(pipeline.spec, str(cache.root), cache.enabled, threads)) as pool:
+    reports = context.Queue()
+    with listening(reports), ProcessPoolExecutor(
+            workers, mp_context=context, initializer=_start_worker,
+            initargs=(pipeline.spec, str(cache.root), cache.enabled, threads, reports)) as pool:
         futures = {pool.submit(_work, source): source for source in sources}
         error = None
         try:

@@ -144,3 +144,34 @@ def test_factory_module_sees_through_partials():
 
     assert factory_module(DisFlow) == "eponet.plugins.flow.dis"
     assert factory_module(functools.partial(DisFlow, preset="fast")) == "eponet.plugins.flow.dis"
+
+
+def test_a_full_cache_disk_is_one_warning_and_the_run_goes_on(tmp_path, monkeypatch, caplog):
+    import contextlib
+    import errno
+    import logging
+
+    from eponet.core import cache as cache_module
+
+    @contextlib.contextmanager
+    def full_disk(path):
+        raise OSError(errno.ENOSPC, "No space left on device")
+        yield
+
+    cache = Cache(tmp_path)
+    cache.save("flow", "aa" * 32, {"x": np.zeros(3)})
+    monkeypatch.setattr(cache_module, "atomic_path", full_disk)
+    with caplog.at_level(logging.WARNING, logger="eponet.core.cache"):
+        for key in ("bb", "cc", "dd"):
+            cache.save("flow", key * 32, {"x": np.zeros(3)})
+    assert caplog.messages == [f"cache {tmp_path}: no space left on its disk; this run stores no more results there"]
+    assert cache.load("flow", "aa" * 32) is not None and cache.load("flow", "bb" * 32) is None  # reads go on
+
+
+def test_remove_an_entry(tmp_path):
+    cache = Cache(tmp_path)
+    cache.save("rigidity", "ab" * 32 + "-state", {"x": np.zeros(3)})
+    assert cache.exists("rigidity", "ab" * 32 + "-state")
+    cache.remove("rigidity", "ab" * 32 + "-state")
+    cache.remove("rigidity", "ab" * 32 + "-state")  # gone already: nothing to do
+    assert not cache.exists("rigidity", "ab" * 32 + "-state")

@@ -176,3 +176,113 @@ def test_the_summary_says_how_many_frames_a_max_frames_run_scored(capsys, tmp_pa
                                 "b": {"frames_scored": 3, "frames_in_ground_truth": 33}}}
     _print_summary({"sequences": {}, "evaluation": evaluation}, tmp_path, quiet=False)
     assert "J mean 0.500, 6 of 56 ground-truth frames scored (input.max_frames 4)" in capsys.readouterr().out
+
+
+def _geometry_spec(path, source, out, **run):
+    path.write_text(textwrap.dedent(f"""
+        preset: geometry
+        input: {{path: {source}, scale: 1.0}}
+        stages: {{rigidity: {{max_points: 100}}}}
+        output: {{dir: {out}, save: [ed, flow]}}
+        run: {{workers: 1, chunk: 4, lag: 4}}
+        cache: {{enabled: false}}
+    """))
+    return path
+
+
+def test_off_a_terminal_a_long_sequence_logs_progress_lines_and_q_silences_them(frames_dir, tmp_path, capsys,
+                                                                               monkeypatch):
+    import re
+
+    from eponet.cli import main
+    from eponet.core import progress
+
+    monkeypatch.setattr(progress, "PROGRESS_INTERVAL_S", 0.0)  # every sequence is "long": a line per frame
+    spec = _geometry_spec(tmp_path / "s.yaml", frames_dir, tmp_path / "out")
+    assert main(["run", str(spec)]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "frames/s" in line]
+    assert len(lines) == 5, err
+    assert re.fullmatch(r"eponet: INFO: clip: 1/5 frames, [\d.]+ frames/s, ETA \d+ s", lines[0]), lines[0]
+    assert lines[-1].startswith("eponet: INFO: clip: 5/5 frames, ") and lines[-1].endswith(", ETA 0 s")
+    assert any(re.match(r"eponet: INFO: clip: flow [\d.]+ s, trajectories .*; 5 frames in ", l) for l in err.splitlines())
+    assert "\r" not in err and "%|" not in err  # no bar off a terminal
+
+    assert main(["run", str(spec), "-q", "--set", f"output.dir={tmp_path / 'quiet'}"]) == 0
+    assert capsys.readouterr().err == ""
+
+
+def _two_sequences(root):
+    from tests.conftest import textured_frames, write_frames
+
+    for k, name in enumerate(("a", "b")):
+        write_frames(root / "JPEGImages" / "480p" / name, textured_frames(6, seed=k))
+    return root
+
+
+def _files(folder):
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("quiet", [True, False])
+def test_a_full_output_disk_is_one_line_exit_2_and_keeps_the_finished_sequences(tmp_path, capsys, monkeypatch, quiet):
+    """The disk fills up while the second sequence is written: one line naming output.dir, exit code 2, no temp
+    file or partial folder left, the first sequence's outputs and record intact; the next run does the rest."""
+    import contextlib
+    import errno
+    import json
+    import os
+
+    from eponet.cli import main
+    from eponet.core import io, outputs
+
+    root = _two_sequences(tmp_path / "davis")
+    out = tmp_path / "out"
+    assert main(["run", str(_geometry_spec(tmp_path / "clean.yaml", root, tmp_path / "clean")), "-q"]) == 0
+    real = io.atomic_path
+
+    @contextlib.contextmanager
+    def full_disk(path):
+        with real(path) as tmp:
+            yield tmp  # the bytes are written, then the disk is full
+            if os.sep + ".b." in str(path):  # inside b's partial folder
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), tmp)
+
+    monkeypatch.setattr(io, "atomic_path", full_disk)
+    monkeypatch.setattr(outputs, "atomic_path", full_disk)
+    spec = _geometry_spec(tmp_path / "s.yaml", root, out)
+    assert main(["run", str(spec), *(["-q"] if quiet else [])]) == 2
+    err = capsys.readouterr().err.splitlines()
+    errors = [line for line in err if line.startswith("error:")]
+    assert errors == [f"error: {out}: no space left on the output disk (writing b frame 00000); free some space or "
+                      "set output.dir to another disk and run again (finished sequences are kept and skipped)"]
+    if quiet:
+        assert err == errors
+    assert "Traceback" not in "\n".join(err)
+    assert sorted(p.name for p in out.iterdir()) == ["a", "run.json"]  # no partial folder, no temp file
+    assert not [p for p in out.rglob("*") if p.name.startswith(".")]
+    assert list(json.loads((out / "run.json").read_text())["sequences"]) == ["a"]
+    clean = _files(tmp_path / "clean" / "a")
+    assert clean and _files(out / "a") == clean
+
+    monkeypatch.setattr(io, "atomic_path", real)
+    monkeypatch.setattr(outputs, "atomic_path", real)
+    assert main(["run", str(spec), "-q"]) == 0
+    run = json.loads((out / "run.json").read_text())
+    assert run["sequences"]["a"]["resumed"] is True and "resumed" not in run["sequences"]["b"]
+    assert _files(out / "b") == _files(tmp_path / "clean" / "b")
+
+
+def test_a_frame_whose_size_changes_in_the_middle_of_a_folder_is_one_line_and_exit_2(tmp_path):
+    from tests.conftest import textured_frames, write_frames
+
+    clip = tmp_path / "clip"
+    write_frames(clip, textured_frames(3, size=(48, 64)))
+    write_frames(clip, textured_frames(1, size=(40, 64)), start=3)
+    write_frames(clip, textured_frames(2, size=(48, 64)), start=4)
+    spec = _geometry_spec(tmp_path / "s.yaml", clip, tmp_path / "out")
+    expected = f"error: {clip / '00003.png'}: frame is 64x40 but the first frame 00000.png is 64x48"
+    for command in ("eponet validate", "eponet.run"):
+        result = _run(*command.split(), str(spec))
+        assert result.returncode == 2 and result.stderr.strip() == expected, (command, result.stderr)
+    assert not (tmp_path / "out").exists()
