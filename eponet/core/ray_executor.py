@@ -23,7 +23,7 @@ from .inputs import SequenceSource
 from .outputs import remove_partials
 from .spec import Spec
 
-__all__ = ["run_on_ray", "connect", "ray_missing", "address_problem", "RETRIES", "CONNECT_TIMEOUT_S"]
+__all__ = ["run_on_ray", "connect", "SequenceWorker", "ray_missing", "address_problem", "RETRIES", "CONNECT_TIMEOUT_S"]
 
 log = logging.getLogger(__name__)
 
@@ -129,6 +129,11 @@ class SequenceWorker:
         except Exception as exc:  # noqa: BLE001 - the same, for a failure that is not one of eponet's
             self.problem = (f"the pipeline failed to start on {self.node}: {exc.__class__.__name__}: {exc}", 1)
 
+    def describe(self) -> dict:
+        """Where this actor runs: ``node``, ``pid``, ``threads``, and ``problem`` when its pipeline failed to start."""
+        return {"node": self.node, "pid": os.getpid(), "threads": self.threads,
+                "problem": self.problem[0] if self.problem else None}
+
     def run(self, source: SequenceSource) -> tuple[str, str, object]:
         """``(name, "ok", run.json entry)`` or ``(name, "error", (one-line reason, exit code))``."""
         if self.problem is not None:
@@ -139,7 +144,7 @@ class SequenceWorker:
             return source.name, "error", (str(exc), exc.exit_code)
         except Exception as exc:  # noqa: BLE001 - one line for the run record, like the local workers
             return source.name, "error", (f"{source.name}: {exc.__class__.__name__}: {exc}", 1)
-        entry["worker"] = {"node": self.node, "pid": os.getpid(), "threads": self.threads}
+        entry["worker"] = {k: v for k, v in self.describe().items() if k != "problem"}
         return source.name, "ok", entry
 
 
