@@ -103,7 +103,7 @@ def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None) -> d
 
 
 def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: list[int], rigidity: dict,
-            weights: Path | None = None) -> dict[str, dict]:
+            weights: Path | None = None, save: tuple[str, ...] = ("masks",)) -> dict[str, dict]:
     """Train one network per fold (``jobs`` at once, one thread each; into ``weights`` or ``out``) and score
     its held-out sequences, with the ``rigidity`` settings merged onto the preset's when given."""
     weights = weights or out
@@ -123,7 +123,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             stages["rigidity"] = {"plugin": "trifocal", **rigidity}
         if crf is not None:
             stages["refiner"] = crf
-        manifest = run_validation(stages, out / f"fold{i}" / "heldout", davis, split[i],
+        manifest = run_validation(stages, out / f"fold{i}" / "heldout", davis, split[i], save=save,
                                   evaluate={"dataset": "davis2016", "t": True})
         for name, v in manifest["evaluation"]["sequences"].items():
             per_sequence[name] = {"fold": i, "train_s": round(seconds[i], 1),
@@ -143,6 +143,8 @@ def main(argv=None) -> int:
     parser.add_argument("--weights", type=Path, default=None,
                         help="epo: folder of already trained fold<i>/weights.pt to score (default: --out)")
     parser.add_argument("--flow-cache", type=Path, default=None)
+    parser.add_argument("--save", default="masks",
+                        help="epo: comma-separated outputs of the held-out runs (output.save), e.g. masks,saliency,ed")
     parser.add_argument("--attributes", nargs="*", default=list(ATTRIBUTES))
     args = parser.parse_args(argv)
     if not (DAVIS / "ImageSets" / "train.txt").exists():
@@ -160,7 +162,8 @@ def main(argv=None) -> int:
         measures = ("AUC",)
         meta = {"rigidity": rigidity}
     else:
-        per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights)
+        per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
+                               tuple(args.save.split(",")))
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
     previous = out / "kfold.json"

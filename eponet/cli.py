@@ -1,4 +1,4 @@
-"""The ``eponet`` command line: run, validate, plugins, cache, evaluate, make-rbsf, train."""
+"""The ``eponet`` command line: run, validate, plugins, cache, report, evaluate, make-rbsf, train."""
 
 from __future__ import annotations
 
@@ -233,6 +233,15 @@ def _cmd_cache_prune(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_report(args: argparse.Namespace) -> int:
+    from .core.html_report import write_report
+
+    path = write_report(Path(args.out_dir))
+    if not args.quiet:
+        print(f"wrote {path}")
+    return 0
+
+
 def _forward(module: str) -> Callable[[list[str]], int]:
     def call(argv: list[str]) -> int:
         import importlib
@@ -269,6 +278,10 @@ def build_parser() -> argparse.ArgumentParser:
         parser_.add_argument("--cache-dir", help="cache location (default: $EPONET_CACHE or ~/.cache/eponet)")
         _add_common(parser_)
         parser_.set_defaults(handler=handler)
+    report = sub.add_parser("report", help="write OUT_DIR/index.html: a run's videos, panels, timings, scores and record")
+    report.add_argument("out_dir", metavar="OUT_DIR", help="a run's output folder (output.dir, with its run.json)")
+    _add_common(report)
+    report.set_defaults(handler=_cmd_report)
     for name, text in (("evaluate", "score masks with the DAVIS J / F / T protocol (see eponet evaluate -h)"),
                        ("make-rbsf", "generate RBSF-style synthetic videos with exact ground truth"),
                        ("train", "train a network from a training spec (see eponet train -h)")):

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import functools
+import importlib.machinery
 import importlib.util
 import hashlib
 import json
 import logging
 import os
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +18,8 @@ import numpy as np
 
 from .io import atomic_path
 
-__all__ = ["Cache", "CacheEntry", "content_key", "array_digest", "code_fingerprint", "STALE_TEMP_SECONDS"]
+__all__ = ["Cache", "CacheEntry", "content_key", "array_digest", "code_fingerprint", "factory_module",
+           "STALE_TEMP_SECONDS"]
 
 log = logging.getLogger(__name__)
 
@@ -40,24 +43,66 @@ ALGORITHM_CODE = ("geometry", "core/types.py", "core/imaging.py", "core/motion.p
 
 @functools.lru_cache(maxsize=None)
 def code_fingerprint(module: str | None = None) -> str:
-    """sha256 over the sources of a built-in stage's module (e.g. ``eponet.plugins.rigidity.trifocal``) and
-    eponet's algorithm code (:data:`ALGORITHM_CODE`), so that a changed algorithm never reuses stale results
-    while edits elsewhere (CLI, training, evaluation) keep the cache. Third-party plugins are keyed by their
-    package version instead."""
+    """sha256 over eponet's algorithm code (:data:`ALGORITHM_CODE`) and the code of the stage whose factory lives in
+    ``module``, so that a changed algorithm never reuses stale results while edits elsewhere (CLI, training,
+    evaluation) keep the cache.
+
+    A built-in stage's code is its module (e.g. ``eponet.plugins.rigidity.trifocal``). A third-party plugin's is
+    every module file of its top-level package (``myplugin`` for ``myplugin.stages.flow``; the module itself when
+    it is not in a package), since a plugin module may import its own helpers: an edited plugin (``pip install
+    -e``) gets new keys even when its version stays the same. Computed once per process, from the files as they
+    are then (the code the process imported)."""
     root = Path(__file__).resolve().parent.parent
     paths = []
     for name in ALGORITHM_CODE:
         target = root / name
-        paths += sorted(target.rglob("*.py")) if target.is_dir() else [target]
+        files = sorted(target.rglob("*.py")) if target.is_dir() else [target]
+        paths += [(str(path.relative_to(root)), path) for path in files]
     if module:
-        spec = importlib.util.find_spec(module)
-        if spec is not None and spec.origin:
-            paths.append(Path(spec.origin))
+        paths += _stage_sources(module, root)
     digest = hashlib.sha256()
-    for path in paths:
-        digest.update(str(path.relative_to(root) if path.is_relative_to(root) else path.name).encode())
+    for label, path in paths:
+        digest.update(label.encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()
+
+
+#: Files that hold a module's code (``.py`` and compiled extensions), for a third-party plugin's fingerprint.
+_MODULE_SUFFIXES = tuple(importlib.machinery.SOURCE_SUFFIXES + importlib.machinery.EXTENSION_SUFFIXES)
+
+
+def _stage_sources(module: str, root: Path) -> list[tuple[str, Path]]:
+    """``(label, file)`` of the code :func:`code_fingerprint` takes a stage in ``module`` to be: the imported module
+    (or package) where it is loaded, else where the import system would find it; [] when it has no file (e.g. a
+    module made at run time)."""
+    builtin = module.split(".")[0] == "eponet"
+    name = module if builtin else module.split(".")[0]
+    loaded = sys.modules.get(name)
+    if loaded is not None:
+        origin, locations = getattr(loaded, "__file__", None), getattr(loaded, "__path__", None)
+    else:
+        try:
+            spec = importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            return []
+        if spec is None:
+            return []
+        origin, locations = spec.origin, spec.submodule_search_locations
+    if builtin or not locations:
+        path = Path(origin) if origin else None
+        if path is None or not path.is_file():
+            return []
+        return [(str(path.relative_to(root)) if path.is_relative_to(root) else path.name, path)]
+    files = []
+    for location in map(Path, list(locations)):
+        files += sorted((str(path.relative_to(location.parent)), path) for path in location.rglob("*")
+                        if path.suffix in _MODULE_SUFFIXES and "__pycache__" not in path.parts and path.is_file())
+    return files
+
+
+def factory_module(factory) -> str | None:
+    """The module a stage factory (a class, a function or a ``functools.partial`` of one) is defined in."""
+    return getattr(getattr(factory, "func", factory), "__module__", None)
 
 
 def content_key(**parts) -> str:

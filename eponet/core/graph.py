@@ -120,6 +120,7 @@ OUTPUTS: dict[str, str] = {
     "motion_images": "ed",
     "overlay": "masks",
     "panels": "flow",
+    "report": "frames",  # index.html of the whole run (eponet.core.html_report); shows what the others saved
 }
 
 
@@ -236,7 +237,7 @@ def _trajectories(value, frames, shape, _):
             or _array("length", value.length, [len(value.start)], np.int32)
             or _array("offsets", value.offsets, [len(value.start) + 1], np.int64)
             or _array("positions", value.positions, ["N", 2], np.float32)
-            or _array("labels", value.labels, [frames, *shape], np.int32, low=0))
+            or _array("labels", value.labels, [frames, *shape], np.int32, low=0, high=len(value.start) - 1))
 
 
 def _rigidity(value, frames, shape, trajectories):

@@ -17,9 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .cache import Cache, code_fingerprint, content_key
+from .cache import Cache, code_fingerprint, content_key, factory_module
 from .errors import EponetError, OutputError, SequenceFailures, StageError
 from .graph import GRAPH, check_stage, stage_kind
+from .html_report import write_report
 from .inputs import SequenceSource, discover_sequences, iter_frames, processing_size
 from .io import atomic_write_bytes
 from .outputs import SequenceOutputs, SequenceWriter, remove_partials
@@ -144,9 +145,10 @@ class Pipeline:
         return features.astype(np.float32)
 
     def key(self, kind: str, upstream: str, **extra) -> str:
-        """Cache key of stage ``kind``: its plugin, version, code fingerprint, parameters and upstream key."""
+        """Cache key of stage ``kind``: its plugin, version, code fingerprint (built-in or third-party:
+        :func:`~eponet.core.cache.code_fingerprint`), parameters and upstream key."""
         config = self.spec.stages[kind]
-        code = code_fingerprint(config.spec.factory.__module__) if config.spec.package == "eponet" else None
+        code = code_fingerprint(factory_module(config.spec.factory))  # a third-party plugin's package too
         return content_key(stage=kind, plugin=config.plugin, version=config.spec.version, code=code,
                            params=config.params, upstream=upstream, **extra)
 
@@ -284,6 +286,7 @@ class Pipeline:
         manifest["total_seconds"] = round(time.time() - started, 3)
         _write_manifest(spec.output.dir / "run.json", manifest)  # the record is kept whatever scoring does
         if failures:
+            self._write_report(manifest)  # of the sequences that finished
             raise SequenceFailures(failures, len(sources))
         if spec.evaluate is not None:
             from .registry import get_registry
@@ -293,10 +296,16 @@ class Pipeline:
             except BaseException as exc:
                 manifest["evaluation"] = {"error": f"{exc.__class__.__name__}: {exc}"}
                 _write_manifest(spec.output.dir / "run.json", manifest)
+                self._write_report(manifest)  # the page says that scoring failed
                 raise
             manifest["total_seconds"] = round(time.time() - started, 3)
             _write_manifest(spec.output.dir / "run.json", manifest)
+        self._write_report(manifest)
         return manifest
+
+    def _write_report(self, manifest: dict) -> None:
+        if "report" in self.spec.output.save:
+            log.info("report: %s", write_report(self.spec.output.dir, manifest))
 
     def record(self, invocation: dict | None = None, started: float | None = None) -> dict:
         """What ``run.json`` says about the run besides its sequences: versions, the resolved spec and cache,

@@ -138,3 +138,52 @@ def test_two_processes_writing_one_key_leave_a_whole_entry_at_every_moment(tmp_p
     assert [w.wait() for w in writers] == [0, 0]  # neither writer logged a failed write
     assert seen and cache.load("flow", "ef" * 32)[1]["writer"] in (1, 2)
     assert [p.name for p in path.parent.iterdir()] == [path.name]  # no temp file left
+
+
+def test_a_third_party_plugins_fingerprint_covers_its_packages_files(monkeypatch, tmp_path):
+    """A plugin outside eponet is fingerprinted by every module file of its top-level package (the plugin module
+    may import its helpers), so an edit in place (``pip install -e``) changes the code part of its cache keys."""
+    import sys
+    import types
+
+    from eponet.core.cache import code_fingerprint
+
+    package = tmp_path / "kit_fingerprint_plugin"
+    (package / "ops").mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "stage.py").write_text("from .ops.scale import SCALE\n")
+    (package / "ops" / "__init__.py").write_text("")
+    (package / "ops" / "scale.py").write_text("SCALE = 1.0\n")
+    (package / "README.txt").write_text("not code")
+    (tmp_path / "kit_single_module_plugin.py").write_text("SCALE = 1.0\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(sys.modules, "kit_module_without_file", types.ModuleType("kit_module_without_file"))
+
+    def fingerprint(module):
+        code_fingerprint.cache_clear()  # computed once per process: each call here stands for a new process
+        return code_fingerprint(module)
+
+    algorithm_only = fingerprint(None)
+    before = fingerprint("kit_fingerprint_plugin.stage")
+    assert before not in (algorithm_only, fingerprint("eponet.plugins.flow.dis"))
+    assert fingerprint("kit_fingerprint_plugin.ops") == before  # one package, one fingerprint
+    (package / "README.txt").write_text("edited, still not code")
+    assert fingerprint("kit_fingerprint_plugin.stage") == before
+    (package / "ops" / "scale.py").write_text("SCALE = 2.0\n")  # a helper module, not the stage's own
+    edited = fingerprint("kit_fingerprint_plugin.stage")
+    assert edited != before
+    single = fingerprint("kit_single_module_plugin")
+    (tmp_path / "kit_single_module_plugin.py").write_text("SCALE = 2.0\n")
+    assert fingerprint("kit_single_module_plugin") not in (single, algorithm_only)
+    assert fingerprint("kit_module_without_file") == algorithm_only
+    assert fingerprint("kit_no_such_module") == algorithm_only
+
+
+def test_factory_module_sees_through_partials():
+    import functools
+
+    from eponet.core.cache import factory_module
+    from eponet.plugins.flow.dis import DisFlow
+
+    assert factory_module(DisFlow) == "eponet.plugins.flow.dis"
+    assert factory_module(functools.partial(DisFlow, preset="fast")) == "eponet.plugins.flow.dis"

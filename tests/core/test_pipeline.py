@@ -196,3 +196,66 @@ def test_a_missing_corpus_entry_is_named_and_the_others_run(frames_dir, tmp_path
     with pytest.raises(SequenceFailures):  # again: the finished sequence is kept, the missing one named again
         Pipeline(_spec(listing, out, tmp_path / "cache")).run()
     assert json.loads((out / "run.json").read_text())["sequences"]["clip"]["resumed"] is True
+
+
+_EDITABLE_PLUGIN = '''
+import numpy as np
+
+from eponet.core.hookspecs import StageSpec, hookimpl
+from eponet.core.types import FlowPair
+
+from .motion import SHIFT
+
+
+class ShiftFlow:
+    def estimate(self, video):
+        frames, height, width = video.frames.shape[:3]
+        forward = np.full((frames - 1, height, width, 2), SHIFT, np.float32)
+        return FlowPair(forward, -forward)
+
+
+@hookimpl
+def eponet_stages():
+    return [StageSpec(kind="flow", name="shift", factory=ShiftFlow, doc="a constant flow")]
+'''
+
+
+def test_an_edited_third_party_plugin_does_not_reuse_stale_cache_entries(frames_dir, tmp_path, monkeypatch):
+    """A plugin installed with ``pip install -e`` and edited keeps its version; its cache keys still change, since
+    they carry a fingerprint of its package's files (before, they had none and the old flow came back)."""
+    import importlib
+    import sys
+
+    from eponet.core.cache import code_fingerprint
+    from eponet.core.registry import Registry
+
+    source = tmp_path / "src" / "kit_editable_flow"
+    source.mkdir(parents=True)
+    (source / "__init__.py").write_text("")
+    (source / "plugin.py").write_text(_EDITABLE_PLUGIN)
+    (source / "motion.py").write_text("SHIFT = 1.5\n")
+    monkeypatch.syspath_prepend(str(tmp_path / "src"))
+
+    def run(out: str) -> tuple[dict, np.ndarray]:
+        """One run in what stands for a new process: the plugin imported afresh, the fingerprints recomputed."""
+        for name in [n for n in sys.modules if n.startswith("kit_editable_flow")]:
+            monkeypatch.delitem(sys.modules, name)
+        code_fingerprint.cache_clear()
+        registry = Registry.load(entry_points=False)
+        registry._register(importlib.import_module("kit_editable_flow.plugin"), "kit-editable-flow:shift",
+                           package="kit-editable-flow", version="0.1.0")
+        spec = parse_spec({"preset": "geometry", "input": {"path": str(frames_dir), "scale": 1.0},
+                           "stages": {"flow": {"plugin": "shift"}, "trajectories": None, "rigidity": None},
+                           "output": {"dir": str(tmp_path / out), "save": ["flow"]},
+                           "cache": {"dir": str(tmp_path / "cache")}}, registry=registry)
+        manifest = Pipeline(spec).run()
+        return manifest["sequences"]["clip"], read_flo(tmp_path / out / "clip" / "flow" / "forward" / "00000.flo")
+
+    first, flow = run("first")
+    assert first["cached"] == [] and np.allclose(flow, 1.5)
+    again, flow = run("again")
+    assert again["cached"] == ["flow"] and np.allclose(flow, 1.5)  # unchanged code: the cache serves it
+    (source / "motion.py").write_text("SHIFT = 2.5\n")  # edited in place; the version stays 0.1.0
+    edited, flow = run("edited")
+    assert edited["cached"] == [] and np.allclose(flow, 2.5)
+    code_fingerprint.cache_clear()
