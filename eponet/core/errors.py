@@ -13,6 +13,7 @@ __all__ = [
     "MissingWeights",
     "OutputError",
     "UsageError",
+    "SequenceFailures",
 ]
 
 
@@ -96,3 +97,16 @@ class UsageError(EponetError):
     """A bad command-line value (names the option, what it expects and what it got)."""
 
     exit_code = 2
+
+
+class SequenceFailures(EponetError):
+    """Some sequences of a run failed while the others finished; ``failures`` maps each name to its one-line
+    reason. Exit code 2 when every failure is a bad input (a missing corpus entry, an unreadable file), else 1."""
+
+    def __init__(self, failures: dict[str, tuple[str, int]], total: int):
+        self.failures = dict(failures)
+        self.exit_code = 2 if all(code == 2 for _, code in self.failures.values()) else 1
+        reasons = "; ".join(reason if reason.startswith(name) else f"{name}: {reason}"
+                            for name, (reason, _) in self.failures.items())
+        super().__init__(f"{len(self.failures)} of {total} sequences failed ({reasons}); the others finished, and "
+                         f"running the spec again redoes only what is missing")

@@ -1,7 +1,9 @@
-"""Input discovery and loading: a folder of frames, a video file, or a DAVIS-layout root."""
+"""Input discovery and loading: a folder of frames, a video file, a DAVIS-layout root, or a corpus (a list file
+or a glob of videos and frame folders)."""
 
 from __future__ import annotations
 
+import glob
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -10,7 +12,7 @@ import cv2
 import numpy as np
 
 from .errors import InputError
-from .io import IMAGE_SUFFIXES, VIDEO_SUFFIXES, list_images, natural_key, read_image
+from .io import IMAGE_SUFFIXES, LIST_SUFFIXES, VIDEO_SUFFIXES, is_pattern, list_images, natural_key, read_image
 from .registry import nearest
 from .types import MIN_FRAMES, MIN_SIDE, Video
 
@@ -33,6 +35,7 @@ class SequenceSource:
     size: tuple[int, int] | None = None  # (H, W) of the input frames
     count: int = 0
     fps: float | None = None  # a video file's frame rate (its header's); None for frames or an unknown rate
+    error: str | None = None  # a corpus entry that cannot run (missing, unreadable): the one-line reason
 
     @property
     def stems(self) -> list[str]:
@@ -53,12 +56,26 @@ def _check_size(where, size: tuple[int, int]) -> None:
 
 
 def discover_sequences(
-    path: Path, *, sequences: list[str] | None = None, resolution: str = "480p", max_frames: int | None = None
+    path: Path, *, sequences: list[str] | None = None, resolution: str = "480p", max_frames: int | None = None,
+    isolate: bool = False,
 ) -> list[SequenceSource]:
-    """Find the sequences under ``path`` and check them (frame count, readable headers, equal sizes)."""
+    """Find the sequences under ``path`` and check them (frame count, readable headers, equal sizes).
+
+    ``path`` is a folder of frames, a video file, a DAVIS-layout root, a list file (:data:`LIST_SUFFIXES`) or a
+    glob; each entry of a list or a glob is a video file or a frame folder. An entry that is missing or fails its
+    checks raises :class:`InputError`, or, with ``isolate``, comes back as a source whose ``error`` says why
+    (so that a run processes the others).
+    """
+    if is_pattern(path):
+        matches = sorted(glob.glob(str(path), recursive=True), key=natural_key)
+        if not matches:
+            raise InputError(f"input.path: no file or folder matches {path}")
+        return _corpus([(f"input.path: {path}: match {m}", Path(m)) for m in matches], sequences, max_frames, isolate)
     path = Path(path)
     if not path.exists():
         raise InputError(f"input.path: {path} does not exist")
+    if path.is_file() and path.suffix.lower() in LIST_SUFFIXES:
+        return _corpus(_list_entries(path), sequences, max_frames, isolate)
     if path.is_file():
         if sequences:
             raise InputError(f"input.sequences: only a DAVIS-layout root has sequences; {path} is a single video")
@@ -82,6 +99,51 @@ def discover_sequences(
     if sequences:
         raise InputError(f"input.sequences: only a DAVIS-layout root (with JPEGImages/) has sequences; {path} is a folder of frames")
     return [_check_frames(path, path.name, max_frames)]
+
+
+def _list_entries(path: Path) -> list[tuple[str, Path]]:
+    """``(where, entry)`` for each line of a list file: paths relative to the list's folder."""
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"input.path: {path}: cannot read the list ({getattr(exc, 'strerror', None) or exc})") from None
+    entries = []
+    for number, line in enumerate(lines, start=1):
+        line = line.strip()
+        if line and not line.startswith("#"):
+            entries.append((f"{path}: line {number}", path.parent / line))
+    if not entries:
+        raise InputError(f"input.path: {path} lists no videos or frame folders")
+    return entries
+
+
+def _corpus(entries: list[tuple[str, Path]], sequences: list[str] | None, max_frames: int | None,
+            isolate: bool) -> list[SequenceSource]:
+    """The sequences of a list or a glob: a video's name is its file's stem, a frame folder's its own name."""
+    named: dict[str, tuple[str, Path]] = {}
+    for where, entry in entries:
+        name = entry.stem if entry.suffix.lower() in VIDEO_SUFFIXES or entry.is_file() else entry.name
+        if name in named:
+            raise InputError(f"{where}: {entry} and {named[name][1]} would both be sequence {name!r} "
+                             f"(one output folder each); rename one")
+        named[name] = (where, entry)
+    for name in sequences or []:
+        if name not in named:
+            hint = nearest(name, list(named))
+            raise InputError(f"input.sequences: no sequence {name!r} in the corpus"
+                             f"{f' (did you mean {hint!r}?)' if hint else ''}")
+    found = []
+    for name in sequences or list(named):
+        where, entry = named[name]
+        try:
+            if not entry.exists():
+                raise InputError(f"{where}: {entry} does not exist")
+            found.append(_check_frames(entry, name, max_frames) if entry.is_dir() else _check_video(entry, max_frames))
+        except InputError as exc:
+            if not isolate:
+                raise
+            found.append(SequenceSource(name=name, video=entry, error=str(exc)))
+    return found
 
 
 def _check_frames(folder: Path, name: str, max_frames: int | None) -> SequenceSource:

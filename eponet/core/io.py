@@ -17,6 +17,8 @@ from .errors import InputError, OutputError
 __all__ = [
     "IMAGE_SUFFIXES",
     "VIDEO_SUFFIXES",
+    "LIST_SUFFIXES",
+    "is_pattern",
     "FLO_TAG",
     "DAVIS_PALETTE",
     "natural_key",
@@ -37,6 +39,9 @@ __all__ = [
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".ppm", ".pgm", ".tif", ".tiff")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
+#: ``input.path`` as a text file with one of these suffixes lists a corpus: one video file or frame folder a line,
+#: relative to the list's folder (blank lines and lines starting with ``#`` are skipped).
+LIST_SUFFIXES = (".txt",)
 FLO_TAG = 202021.25
 #: Flow values at or above this magnitude mean "unknown" in the Middlebury format.
 FLO_UNKNOWN = 1e9
@@ -48,6 +53,11 @@ def _davis_palette() -> np.ndarray:
 
 
 DAVIS_PALETTE = _davis_palette()
+
+
+def is_pattern(path: str | Path) -> bool:
+    """Whether ``input.path`` is a glob (it holds ``*``, ``?`` or ``[``) rather than one file or folder."""
+    return any(char in str(path) for char in "*?[")
 
 
 def natural_key(name: str) -> list:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .cache import Cache, code_fingerprint, content_key, factory_module
-from .errors import EponetError, OutputError, StageError
+from .errors import EponetError, OutputError, SequenceFailures, StageError
 from .graph import GRAPH, check_stage, stage_kind
 from .html_report import write_report
 from .inputs import SequenceSource, discover_sequences, iter_frames, processing_size
@@ -224,11 +224,14 @@ class Pipeline:
         """Process every input sequence, write outputs and ``run.json`` (rewritten after every finished
         sequence); sequences a previous run of the same spec finished are skipped. ``invocation`` (the command
         line's ``--set`` overrides and cache options) is recorded as given. The records of earlier runs into the
-        same ``output.dir`` move into the new record's ``runs`` list, oldest first. Returns the manifest."""
+        same ``output.dir`` move into the new record's ``runs`` list, oldest first. Returns the manifest.
+
+        A corpus entry that is missing or unreadable, and with ``run.executor: ray`` any sequence that fails, is
+        recorded under ``failed`` while the others run; then :class:`SequenceFailures` is raised."""
         spec = self.spec
         started = time.time()
         sources = discover_sequences(spec.input.path, sequences=spec.input.sequences,
-                                     resolution=spec.input.resolution, max_frames=spec.input.max_frames)
+                                     resolution=spec.input.resolution, max_frames=spec.input.max_frames, isolate=True)
         remove_partials(spec.output.dir)
         previous = _read_record(spec.output.dir / "run.json")
         runs = previous.pop("runs", [])
@@ -237,8 +240,20 @@ class Pipeline:
         config = self.config_digest()
         earlier = previous.get("sequences") if isinstance(previous.get("sequences"), dict) else {}
         todo = []
+        failures: dict[str, tuple[str, int]] = {}
+
+        def failed(name: str, reason: str, exit_code: int) -> None:
+            """A sequence that cannot finish: named on the console and in ``run.json``; the others go on."""
+            failures[name] = (reason, exit_code)
+            manifest["failed"] = {n: {"reason": r, "exit_code": c} for n, (r, c) in failures.items()}
+            log.error("%s: failed: %s", name, reason)
+            _write_manifest(spec.output.dir / "run.json", manifest)
+
         for source in sources:
             entry = earlier.get(source.name)
+            if source.error is not None:  # a corpus entry that is missing or unreadable
+                failed(source.name, source.error, 2)
+                continue
             if entry and entry.get("config") == config and (spec.output.dir / source.name).is_dir():
                 manifest["sequences"][source.name] = {**entry, "resumed": True}
                 log.info("%s: finished by an earlier run of this spec; skipped", source.name)
@@ -261,13 +276,20 @@ class Pipeline:
 
         total = sum(s.count for s in todo) if all(s.count for s in todo) else None
         with progress.RunProgress(total).active():
-            if workers <= 1:
+            if spec.run.executor == "ray":
+                from .ray_executor import run_on_ray
+
+                manifest["ray"] = run_on_ray(self, todo, finished, failed)
+            elif workers <= 1:
                 for source in todo:
                     finished(source.name, self.run_sequence(source))
             else:
                 run_in_workers(self, todo, workers, finished)
         manifest["total_seconds"] = round(time.time() - started, 3)
         _write_manifest(spec.output.dir / "run.json", manifest)  # the record is kept whatever scoring does
+        if failures:
+            self._write_report(manifest)  # of the sequences that finished
+            raise SequenceFailures(failures, len(sources))
         if spec.evaluate is not None:
             from .registry import get_registry
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import glob
 import os
 from dataclasses import dataclass, field
 from functools import partial
@@ -13,6 +14,7 @@ import yaml
 
 from .errors import PluginNotFound, SpecError
 from .hookspecs import StageSpec
+from .io import is_pattern
 from .params import Param, validate_params
 from .graph import KINDS, OUTPUTS, missing_needs, producer_of, producers
 from .registry import Registry, get_registry, nearest
@@ -35,7 +37,8 @@ TOP_LEVEL_KEYS = ("preset", "input", "stages", "output", "run", "seed", "cache",
 SAVE_ITEMS = tuple(OUTPUTS)
 
 _INPUT = {
-    "path": Param("path", "path", None, "a folder of frames, a video file, or a DAVIS-layout root", required=True),
+    "path": Param("path", "path", None, "a folder of frames, a video file, a DAVIS-layout root, or a corpus: a .txt "
+                  "file listing videos and frame folders (one a line) or a glob", required=True),
     "sequences": Param("sequences", "list", None, "sequence names to process (DAVIS-layout roots)", nullable=True),
     "resolution": Param("resolution", "str", "480p", "DAVIS resolution folder (JPEGImages/<resolution>/)"),
     "scale": Param("scale", "float", 0.5, "processing resolution relative to the input frames", minimum=0.0, maximum=1.0, exclusive_min=True),
@@ -56,6 +59,10 @@ _RUN = {
                      "core, at most one per sequence) or a number"),
     "threads": Param("threads", "bool", True, "overlap the stages of one video in threads (flow of the next chunk "
                      "while the networks work on this one)"),
+    "executor": Param("executor", "choice", "local", "where sequences run: 'local' worker processes or 'ray' actors "
+                      "(pip install -e '.[ray]')", choices=("local", "ray")),
+    "address": Param("address", "str", None, "executor ray: null starts a local Ray instance, 'auto' joins the "
+                     "cluster of this machine, 'ray://host:port' or 'host:port' a remote one", nullable=True),
 }
 _CACHE = {
     "enabled": Param("enabled", "bool", True, "reuse intermediate results (flow, trajectories, ED, ...)"),
@@ -109,6 +116,8 @@ class RunConfig:
     lag: int = 30
     workers: int | str = "auto"
     threads: bool = True
+    executor: str = "local"
+    address: str | None = None
 
 
 @dataclass
@@ -253,6 +262,11 @@ def parse_spec(
             workers = "auto"
         else:
             workers = int(workers)
+    if run_values.get("executor") == "ray" or run_values.get("address") is not None:
+        from .ray_executor import address_problem, ray_missing
+
+        problems.extend(p for p in (ray_missing() if run_values.get("executor") == "ray" else None,
+                                    address_problem(run_values.get("address"))) if p)
     seed = document.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         problems.append(f"seed: expected a non-negative integer, got {seed!r}")
@@ -263,7 +277,10 @@ def parse_spec(
         problems.append(f"input.sequences: expected a list of sequence names, got {sequences!r}")
 
     input_path = resolve_path("input.path", input_values.get("path"))
-    if input_path is not None and not input_path.exists():
+    if input_path is not None and is_pattern(input_path):
+        if not glob.glob(str(input_path), recursive=True):
+            problems.append(f"input.path: no file or folder matches {input_path}")
+    elif input_path is not None and not input_path.exists():
         problems.append(f"input.path: {input_path} does not exist")
 
     save = output_values.get("save") or []
@@ -372,7 +389,8 @@ def parse_spec(
         ),
         stages=stages,
         output=OutputConfig(dir=out_dir, save=tuple(save), fps=output_values.get("fps")),
-        run=RunConfig(chunk=run_values["chunk"], lag=run_values["lag"], workers=workers, threads=run_values["threads"]),
+        run=RunConfig(chunk=run_values["chunk"], lag=run_values["lag"], workers=workers, threads=run_values["threads"],
+                      executor=run_values["executor"], address=run_values["address"]),
         seed=seed,
         cache_enabled=cache_values["enabled"],
         cache_dir=cache_dir,

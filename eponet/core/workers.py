@@ -12,7 +12,7 @@ from .inputs import SequenceSource
 from .progress import listening
 from .spec import Spec
 
-__all__ = ["worker_count", "run_in_workers"]
+__all__ = ["worker_count", "run_in_workers", "limit_threads"]
 
 
 def worker_count(setting, sequences: int) -> int:
@@ -27,7 +27,7 @@ _WORKER = None  # the worker process's Pipeline
 
 def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int, reports) -> None:
     global _WORKER
-    _limit_threads(threads)
+    limit_threads(threads)
     from .progress import forward_to, set_quiet
 
     from .pipeline import Pipeline
@@ -37,7 +37,7 @@ def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int
     _WORKER = Pipeline(spec, cache=Cache(cache_root, enabled=cache_enabled))
 
 
-def _limit_threads(threads: int) -> None:
+def limit_threads(threads: int) -> None:
     """Each worker gets its share of the cores for torch and OpenCV, so that workers do not oversubscribe."""
     import cv2
 

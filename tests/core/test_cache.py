@@ -97,6 +97,49 @@ def test_prune_removes_old_entries_then_the_least_recently_used_down_to_a_size(t
     assert cache.prune(max_size=0) and cache.entries() == []
 
 
+_WRITER = """
+import logging, sys, time
+from pathlib import Path
+import numpy as np
+from eponet.core.cache import Cache
+
+root, writer, go = sys.argv[1], int(sys.argv[2]), Path(sys.argv[3])
+warnings = []
+logging.getLogger("eponet.core.cache").addHandler(type("H", (logging.Handler,), {"emit": lambda s, r: warnings.append(r)})())
+cache = Cache(root)
+while not go.exists():
+    time.sleep(0.001)
+for _ in range(150):
+    cache.save("flow", "ef" * 32, {"x": np.full(2**16, writer, np.int32)}, {"writer": writer})
+sys.exit(3 if warnings else 0)
+"""
+
+
+def test_two_processes_writing_one_key_leave_a_whole_entry_at_every_moment(tmp_path):
+    """The cache may be shared storage used by several workers: writers of one key never tear an entry (each
+    writes its own temp file and renames it into place) and never fail each other."""
+    import subprocess
+    import sys
+
+    go = tmp_path / "go"
+    writers = [subprocess.Popen([sys.executable, "-c", _WRITER, str(tmp_path / "cache"), str(k), str(go)])
+               for k in (1, 2)]
+    cache = Cache(tmp_path / "cache")
+    path = cache._path("flow", "ef" * 32)
+    go.touch()
+    seen = set()
+    while any(w.poll() is None for w in writers):
+        if path.exists():  # once there, the entry is always whole: one writer's array with that writer's meta
+            loaded = cache.load("flow", "ef" * 32)
+            assert loaded is not None, "an entry was read half-written"
+            arrays, meta = loaded
+            assert arrays["x"].shape == (2**16,) and set(np.unique(arrays["x"])) == {meta["writer"]}
+            seen.add(meta["writer"])
+    assert [w.wait() for w in writers] == [0, 0]  # neither writer logged a failed write
+    assert seen and cache.load("flow", "ef" * 32)[1]["writer"] in (1, 2)
+    assert [p.name for p in path.parent.iterdir()] == [path.name]  # no temp file left
+
+
 def test_a_third_party_plugins_fingerprint_covers_its_packages_files(monkeypatch, tmp_path):
     """A plugin outside eponet is fingerprinted by every module file of its top-level package (the plugin module
     may import its helpers), so an edit in place (``pip install -e``) changes the code part of its cache keys."""

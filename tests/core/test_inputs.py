@@ -107,3 +107,60 @@ def test_frames_smaller_than_the_minimum_are_refused_naming_the_input(tmp_path):
     video = write_video(tmp_path / "small.avi", textured_frames(3, size=(8, 32)))
     with pytest.raises(InputError, match=r"small.avi: frames are 32x8 px; the pipeline needs frames of at least 16x16"):
         discover_sequences(video)
+
+
+def _corpus(tmp_path):
+    """Frame folders ``a`` and ``b`` and a video ``clips/c.avi`` under ``tmp_path/data``."""
+    data = tmp_path / "data"
+    write_frames(data / "a", textured_frames(3))
+    write_frames(data / "b", textured_frames(4))
+    (data / "clips").mkdir()
+    write_video(data / "clips" / "c.avi", textured_frames(5))
+    return data
+
+
+def test_a_list_file_names_videos_and_frame_folders_relative_to_itself(tmp_path):
+    data = _corpus(tmp_path)
+    listing = data / "corpus.txt"
+    listing.write_text("# comments and blank lines are skipped\n\nclips/c.avi\n  a  \n" f"{data / 'b'}\n")
+    sources = discover_sequences(listing)
+    assert [(s.name, s.count, s.error) for s in sources] == [("c", 5, None), ("a", 3, None), ("b", 4, None)]
+    assert sources[0].video == data / "clips" / "c.avi" and sources[1].files[0].parent == data / "a"
+    assert [s.name for s in discover_sequences(listing, sequences=["b", "c"])] == ["b", "c"]
+    with pytest.raises(InputError, match=r"input.sequences: no sequence 'bb' in the corpus \(did you mean 'b'\?\)"):
+        discover_sequences(listing, sequences=["bb"])
+
+
+def test_a_missing_or_bad_list_entry_is_named_and_with_isolate_the_others_stay(tmp_path):
+    data = _corpus(tmp_path)
+    write_frames(data / "short", textured_frames(2))
+    listing = data / "corpus.txt"
+    listing.write_text("a\nmissing/d.mp4\nshort\nb\n")
+    with pytest.raises(InputError, match=r"corpus.txt: line 2: .*missing/d.mp4 does not exist"):
+        discover_sequences(listing)
+    sources = discover_sequences(listing, isolate=True)
+    assert [s.name for s in sources] == ["a", "d", "short", "b"]
+    assert [s.error is None for s in sources] == [True, False, False, True]
+    assert "line 2" in sources[1].error and "2 frame(s), the pipeline needs at least 3" in sources[2].error
+
+
+def test_a_glob_matches_videos_and_frame_folders_in_natural_order(tmp_path):
+    data = _corpus(tmp_path)
+    write_frames(data / "a10", textured_frames(3))
+    write_frames(data / "a2", textured_frames(3))
+    assert [s.name for s in discover_sequences(data / "a*")] == ["a", "a2", "a10"]
+    assert [s.name for s in discover_sequences(data / "**" / "*.avi")] == ["c"]
+    with pytest.raises(InputError, match=r"input.path: no file or folder matches .*\*.mp4"):
+        discover_sequences(data / "*.mp4")
+
+
+def test_two_corpus_entries_with_one_name_are_refused(tmp_path):
+    data = _corpus(tmp_path)
+    write_frames(data / "other" / "a", textured_frames(3))
+    listing = data / "corpus.txt"
+    listing.write_text("a\nother/a\n")
+    with pytest.raises(InputError, match=r"line 2: .*other/a and .*data/a would both be sequence 'a'"):
+        discover_sequences(listing)
+    (data / "empty.txt").write_text("# nothing\n")
+    with pytest.raises(InputError, match=r"empty.txt lists no videos or frame folders"):
+        discover_sequences(data / "empty.txt")

@@ -180,6 +180,24 @@ def test_each_finished_sequence_logs_its_stage_seconds_and_progress(frames_dir, 
     assert any(line.startswith("1/1 sequences done, ") and line.endswith(" s elapsed") for line in lines)
 
 
+def test_a_missing_corpus_entry_is_named_and_the_others_run(frames_dir, tmp_path, caplog):
+    from eponet.core.errors import SequenceFailures
+
+    listing = tmp_path / "corpus.txt"
+    listing.write_text("clip\nlost/clip2.mp4\n")
+    out = tmp_path / "out"
+    with caplog.at_level("ERROR"), pytest.raises(SequenceFailures) as failure:
+        Pipeline(_spec(listing, out, tmp_path / "cache")).run()
+    assert failure.value.exit_code == 2 and str(failure.value).startswith("1 of 2 sequences failed (clip2: ")
+    assert "corpus.txt: line 2: " in str(failure.value) and "clip2: failed: " in caplog.text
+    record = json.loads((out / "run.json").read_text())
+    assert list(record["sequences"]) == ["clip"] and (out / "clip" / "flow").is_dir()
+    assert record["failed"]["clip2"]["exit_code"] == 2 and "lost/clip2.mp4 does not exist" in record["failed"]["clip2"]["reason"]
+    with pytest.raises(SequenceFailures):  # again: the finished sequence is kept, the missing one named again
+        Pipeline(_spec(listing, out, tmp_path / "cache")).run()
+    assert json.loads((out / "run.json").read_text())["sequences"]["clip"]["resumed"] is True
+
+
 _EDITABLE_PLUGIN = '''
 import numpy as np
 

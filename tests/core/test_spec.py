@@ -172,3 +172,12 @@ def test_evaluation_at_another_resolution_than_the_masks_fails_at_validation(tmp
     document["evaluate"]["resolution"] = "480p"
     with pytest.raises(SpecError, match=r"evaluate.resolution: masks are written at the input frames' size \(240p\)"):
         parse_spec(document)
+
+
+def test_input_path_may_be_a_glob_that_must_match(frames_dir, tmp_path):
+    spec = parse_spec(_flow_only(frames_dir.parent / "cl*", tmp_path / "out"))
+    assert spec.input.path == frames_dir.parent / "cl*" and spec.run.executor == "local" and spec.run.address is None
+    with pytest.raises(SpecError, match=r"input.path: no file or folder matches .*/nothing\*"):
+        parse_spec(_flow_only(tmp_path / "nothing*", tmp_path / "out"))
+    with pytest.raises(SpecError, match=r"run.executor: expected one of 'local', 'ray', got \"dask\""):
+        parse_spec(_flow_only(frames_dir, tmp_path / "out", run={"executor": "dask"}))
