@@ -1,0 +1,70 @@
+import numpy as np
+import pytest
+import torch
+
+from eponet.fusion.selftrain import MIN_SAMPLES, fit_appearance, self_trained_probability
+from eponet.plugins.fusion.selftrain import SelfTrainStage
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def _scene(frames=4, size=(12, 16), channels=6, seed=0):
+    """Features on a (12, 16) grid where the object (rows 3-8, columns 4-9) has its own appearance (channels 0
+    and 1 high), saliency at twice the grid's resolution that finds the object and also a distractor: a
+    background patch (rows 0-2, columns 12-15 of the grid) that moves, so the motion map marks it too."""
+    rng = np.random.default_rng(seed)
+    h, w = size
+    features = rng.normal(size=(frames, channels, h, w)).astype(np.float32)
+    obj = np.zeros(size, bool)
+    obj[3:9, 4:10] = True
+    features[:, 0][:, obj] += 3.0
+    features[:, 1][:, obj] += 3.0
+    saliency = np.zeros((frames, 2 * h, 2 * w), np.float32)
+    saliency[:, 6:18, 8:20] = 0.95
+    saliency[:, 0:6, 24:32] = 0.95  # the distractor: confident motion, background appearance
+    return features, saliency, np.kron(obj, np.ones((2, 2), bool))
+
+
+def test_fit_appearance_separates_known_classes():
+    features, _, _ = _scene()
+    labels = np.full((4, 12, 16), -1, np.int8)
+    labels[:, 3:9, 4:10] = 1
+    labels[:, 10:, :] = 0
+    p = fit_appearance(features, labels)
+    assert p.shape == (4, 12, 16) and p.dtype == np.float32
+    assert p[:, 3:9, 4:10].mean() > 0.9  # the labelled object
+    assert p[:, 0:2, 0:3].mean() < 0.1  # unlabelled background of the same appearance as the negatives
+
+
+def test_distractor_of_background_appearance_is_dropped_and_object_kept():
+    features, saliency, obj = _scene()
+    p = self_trained_probability(features, saliency, foreground=0.9, background=0.05, weight=1.0)
+    assert p.shape == saliency.shape and p.dtype == np.float32
+    assert 0.0 <= p.min() and p.max() <= 1.0
+    assert p[:, obj].mean() > 0.8
+    assert p[:, 0:6, 24:32].mean() < 0.3  # the distractor: the motion map said 0.95
+    mixed = self_trained_probability(features, saliency, weight=0.5)
+    np.testing.assert_allclose(mixed, 0.5 * saliency + 0.5 * p, atol=1e-6)
+
+
+def test_too_few_confident_pixels_keep_the_saliency():
+    features, saliency, _ = _scene()
+    dim = saliency * 0.5  # nothing above the foreground threshold
+    assert np.array_equal(self_trained_probability(features, dim), dim)
+    labels = np.zeros((4, 12, 16), np.int8)
+    labels[0, 0, : MIN_SAMPLES - 1] = 1
+    assert fit_appearance(features, labels) is None
+
+
+def test_seeded_and_deterministic_stage():
+    features, saliency, _ = _scene()
+    stage = SelfTrainStage(window=None, samples=200)
+    a = stage.fuse(features, saliency)
+    assert np.array_equal(a, SelfTrainStage(window=None, samples=200).fuse(features, saliency))
+    assert stage.window is None and SelfTrainStage().window == 64
