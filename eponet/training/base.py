@@ -18,7 +18,8 @@ from eponet.core.errors import InputError
 from eponet.core.io import atomic_path, atomic_write_bytes
 from eponet.training.config import DataSource, TrainConfig
 from eponet.training.distributed import (SINGLE, DistributedContext, EpochSampler, all_sum, broadcast_module,
-                                         broadcast_object, collective_errors, threads_per_process, wrap_model)
+                                         broadcast_object, check_global_batch, collective_errors, threads_per_process,
+                                         wrap_model)
 
 __all__ = ["Trainer", "HISTORY_FIELDS", "sequence_j", "plot_history", "data_line", "history_table"]
 
@@ -212,6 +213,7 @@ class Trainer(ABC):
         import torch
 
         context = self.context
+        check_global_batch(self.config.optimizer["batch_size"], context.world_size)  # before loading any data
         if context.is_main:
             self.out.mkdir(parents=True, exist_ok=True)
         self.net = wrap_model(context, self.model)

@@ -5,7 +5,9 @@ One process (no ``WORLD_SIZE`` in the environment, or 1) is the plain loop: no p
 is the identity. Under ``torchrun --nproc-per-node N -m eponet.train spec.yaml`` each process joins the group
 (gloo on CPU, NCCL on GPUs), trains a :class:`~torch.nn.parallel.DistributedDataParallel` copy of the network on
 ``batch_size / N`` samples of every global batch, and DDP averages the gradients, so that a step is the single
-process's step on the whole batch (see :class:`EpochSampler` and the README's training section).
+process's step on the whole batch (see :class:`EpochSampler` and the README's training section). BatchNorm layers
+keep per-process statistics (``SyncBatchNorm`` is GPU-only in torch; eponet uses it on no backend), with rank 0's
+running statistics, which DDP copies to the others before every forward.
 """
 
 from __future__ import annotations
@@ -27,8 +29,8 @@ from eponet.core.errors import EponetError, InputError, SpecError
 from eponet.training.config import DEFAULT_TIMEOUT
 
 __all__ = ["DistributedContext", "DistributedError", "EpochSampler", "SINGLE", "DEFAULT_TIMEOUT", "all_sum",
-           "barrier", "broadcast_object", "broadcast_module", "collective_errors", "distributed_session", "environment",
-           "threads_per_process", "wrap_model"]
+           "barrier", "broadcast_module", "broadcast_object", "check_global_batch", "collective_errors",
+           "distributed_session", "environment", "threads_per_process", "wrap_model"]
 
 log = logging.getLogger(__name__)
 
@@ -217,6 +219,13 @@ def broadcast_module(context: DistributedContext, module) -> None:
             dist.broadcast(tensor, src=0)
 
 
+def check_global_batch(batch_size: int, processes: int) -> None:
+    """A :class:`SpecError` unless the global batch ``batch_size`` is a multiple of the number of processes."""
+    if batch_size % processes:
+        raise SpecError(f"optimizer.batch_size: {batch_size} is not a multiple of the {processes} processes (it is "
+                        f"the global batch; each process takes batch_size / {processes} samples of it)")
+
+
 class _Epoch:
     """The sized "dataset" a DistributedSampler shards: the positions of one epoch's order."""
 
@@ -279,10 +288,7 @@ class EpochSampler(DistributedSampler):
 
     def steps(self, batch_size: int) -> list[np.ndarray]:
         """The epoch's global batches, as positions (the last one may be shorter, still a multiple of ``N``)."""
-        if batch_size % self.num_replicas:
-            raise SpecError(f"optimizer.batch_size: {batch_size} is not a multiple of the {self.num_replicas} "
-                            f"processes (it is the global batch; each process takes batch_size / "
-                            f"{self.num_replicas} samples of it)")
+        check_global_batch(batch_size, self.num_replicas)
         return [np.arange(start, min(start + batch_size, self.total_size))
                 for start in range(0, self.total_size, batch_size)]
 
