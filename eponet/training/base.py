@@ -8,7 +8,6 @@ from abc import ABC, abstractmethod
 import io
 import json
 import logging
-import os
 import time
 from pathlib import Path
 
@@ -18,6 +17,9 @@ from eponet.core.cache import Cache
 from eponet.core.errors import InputError
 from eponet.core.io import atomic_path, atomic_write_bytes
 from eponet.training.config import DataSource, TrainConfig
+from eponet.training.distributed import (SINGLE, DistributedContext, EpochSampler, all_sum, broadcast_module,
+                                         broadcast_object, check_global_batch, collective_errors, threads_per_process,
+                                         wrap_model)
 
 __all__ = ["Trainer", "HISTORY_FIELDS", "sequence_j", "plot_history", "data_line", "history_table"]
 
@@ -40,20 +42,36 @@ class Trainer(ABC):
 
     A subclass sets ``self.model`` (a torch module with a JSON-able ``config`` dict) in its ``__init__`` after
     calling this one (which seeds torch, so the model's initialisation is reproducible) and implements
-    :meth:`load_data`, :meth:`train_epoch`, :meth:`validate`, :meth:`learning_rate` and :meth:`model_card`.
+    :meth:`load_data`, :meth:`train_epoch`, :meth:`validate_sequence`, :meth:`learning_rate` and
+    :meth:`model_card`.
+
+    ``context`` is where this process stands in a torchrun run (:func:`~.distributed.distributed_session`;
+    default: one process). Under DDP, :meth:`train_epoch` trains ``self.net`` (the model wrapped in
+    DistributedDataParallel) on this process's share of each global batch (:meth:`epoch_sampler`), validation is
+    shared among the processes and all-reduced, and only rank 0 writes files.
     """
 
-    def __init__(self, config: TrainConfig):
+    def __init__(self, config: TrainConfig, *, context: DistributedContext = SINGLE):
         import torch
 
         self.config = config
+        self.context = context
         self.out = Path(config.output_dir)
         self.cache = Cache(config.cache_dir, enabled=config.cache_enabled)
         torch.manual_seed(config.seed)
-        torch.set_num_threads(config.threads or max(1, os.cpu_count() or 1))
-        self.device = torch.device("cuda" if config.device in ("auto", "cuda") and torch.cuda.is_available() else "cpu")
+        threads = threads_per_process(config.threads, context.local_world_size)
+        torch.set_num_threads(threads)
+        if context.active:  # OpenCV (the geometry of the training data) shares the cores the same way
+            import cv2
+
+            cv2.setNumThreads(threads)
+            self.device = torch.device(context.device)
+        else:
+            self.device = torch.device("cuda" if config.device in ("auto", "cuda") and torch.cuda.is_available() else "cpu")
         self.model = None
+        self.net = None
         self.ema = None
+        self.phase = None
         self._data: dict[str, list] = {}
 
     # -- what a task provides --------------------------------------------------------------------
@@ -64,12 +82,13 @@ class Trainer(ABC):
 
     @abstractmethod
     def train_epoch(self, data: list, optimizer, epoch: int, samples: int | None) -> float:
-        """One epoch of optimisation (``epoch`` counts from 0 over all phases); returns the mean loss."""
+        """One epoch of optimisation (``epoch`` counts from 0 over all phases) of ``self.net`` on this process's
+        share of the epoch (:meth:`epoch_sampler`); returns the mean loss of its steps."""
         ...
 
     @abstractmethod
-    def validate(self, data: list) -> tuple[float, float]:
-        """(mean loss, mean J over sequences)."""
+    def validate_sequence(self, model, sequence) -> tuple[float, int, float]:
+        """``(sum of the per-frame BCE losses, frames, J)`` of ``model`` on one validation sequence."""
         ...
 
     @abstractmethod
@@ -87,6 +106,16 @@ class Trainer(ABC):
         if key not in self._data:
             self._data[key] = self.load_data(source)
         return self._data[key]
+
+    def epoch_sampler(self, draw, epoch: int) -> EpochSampler:
+        """The sampler of one epoch whose order ``draw(epoch)`` gives (see :class:`~.distributed.EpochSampler`),
+        ``set_epoch(epoch)`` called. ``draw`` draws the order from the epoch's generator, which then draws the
+        augmentation of every global batch in turn, the same on every process (each applies it to its rows)."""
+        what = f"phase {self.phase.name!r}" if self.phase is not None else "the epoch"
+        sampler = EpochSampler(draw, num_replicas=self.context.world_size, rank=self.context.rank,
+                               seed=self.config.seed, what=what)
+        sampler.set_epoch(epoch)
+        return sampler
 
     def _optimizer(self):
         import torch
@@ -118,6 +147,20 @@ class Trainer(ABC):
         """The network that is validated and exported: the weight average when there is one."""
         return self.ema.module if self.ema is not None else self.model
 
+    def validate(self, data: list) -> tuple[float, float]:
+        """(mean BCE loss per frame, mean J over sequences) of :meth:`inference_model`. Under DDP every process
+        first takes rank 0's weights and BatchNorm statistics (what is exported), scores its share of the
+        sequences (``rank, rank + N, ...``), and the sums are all-reduced: every process gets the figures of the
+        whole validation set, in about 1/N of the time."""
+        model = self.inference_model()
+        broadcast_module(self.context, model)
+        totals = [0.0, 0.0, 0.0, 0.0]  # loss sum, frames, J sum, sequences
+        for sequence in data[self.context.rank :: self.context.world_size]:
+            loss, frames, j = self.validate_sequence(model, sequence)
+            totals = [totals[0] + loss, totals[1] + frames, totals[2] + j, totals[3] + 1]
+        loss, frames, j, count = all_sum(self.context, totals)
+        return loss / frames, j / count
+
     def _save_checkpoint(self, optimizer, epoch: int, history: list[dict]) -> None:
         import torch
 
@@ -127,6 +170,20 @@ class Trainer(ABC):
             state["ema"] = self.ema.state_dict()
         with atomic_path(self.out / "checkpoint-last.pt") as tmp:
             torch.save(state, tmp)
+
+    def _load_checkpoint(self) -> dict:
+        """``checkpoint-last.pt``, read by rank 0 and sent to the others (so ``output.dir`` need be on rank 0's
+        machine only)."""
+        import torch
+
+        checkpoint = self.out / "checkpoint-last.pt"
+        state = None
+        if self.context.is_main and checkpoint.is_file():
+            state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+        state = broadcast_object(self.context, state)
+        if state is None:
+            raise InputError(f"{checkpoint}: no checkpoint to resume from")
+        return state
 
     def export_weights(self, path: Path, meta: dict) -> str:
         """Write inference weights (config + state dict + metadata) atomically; returns their sha256."""
@@ -148,19 +205,26 @@ class Trainer(ABC):
     def run(self, resume: bool = False) -> dict:
         """Train every phase's epochs (continuing after the last checkpoint with ``resume``), writing a
         checkpoint, ``history.csv`` and ``curves.png`` after each epoch, then ``weights.pt``, ``summary.json`` and
-        ``model-card.md``; returns the summary."""
+        ``model-card.md``; returns the summary (on every process under DDP; rank 0 writes the files)."""
+        with collective_errors(self.context):
+            return self._run(resume)
+
+    def _run(self, resume: bool) -> dict:
         import torch
 
-        self.out.mkdir(parents=True, exist_ok=True)
+        context = self.context
+        check_global_batch(self.config.optimizer["batch_size"], context.world_size)  # before loading any data
+        if context.is_main:
+            self.out.mkdir(parents=True, exist_ok=True)
+        self.net = wrap_model(context, self.model)
+        if context.rank:  # torch's own randomness in training (dropout) differs between processes
+            torch.manual_seed(int(np.random.SeedSequence([self.config.seed, context.rank]).generate_state(1)[0]))
         optimizer = self._optimizer()
         self._start_ema()
         history: list[dict] = []
         start_epoch = 0
-        checkpoint = self.out / "checkpoint-last.pt"
         if resume:
-            if not checkpoint.is_file():
-                raise InputError(f"{checkpoint}: no checkpoint to resume from")
-            state = torch.load(checkpoint, map_location=self.device, weights_only=False)
+            state = self._load_checkpoint()
             self.model.load_state_dict(state["model"])
             optimizer.load_state_dict(state["optimizer"])
             if self.ema is not None and "ema" in state:
@@ -171,29 +235,39 @@ class Trainer(ABC):
         schedule = [(phase, e) for phase in self.config.phases for e in range(phase.epochs)]
         for epoch in range(start_epoch, len(schedule)):
             phase, epoch_in_phase = schedule[epoch]
+            self.phase = phase
             data = self.data(phase.data)
             lr = self.learning_rate(epoch, epoch_in_phase)
             for group in optimizer.param_groups:
                 group["lr"] = lr
             tick = time.time()
-            loss = self.train_epoch(data, optimizer, epoch, phase.samples_per_epoch)
+            # every process has as many steps of equally many samples: the mean of the processes' means is the
+            # mean over the global batches
+            [loss] = all_sum(context, [self.train_epoch(data, optimizer, epoch, phase.samples_per_epoch)])
+            loss /= context.world_size
             val_loss, val_j = self.validate(validation) if validation else (float("nan"), float("nan"))
             row = {"epoch": epoch + 1, "phase": phase.name, "lr": lr, "train_loss": round(loss, 5),
                    "val_loss": round(val_loss, 5), "val_j": round(val_j, 4), "seconds": round(time.time() - tick, 1)}
             history.append(row)
-            log.info("epoch %d (%s): loss %.4f, val loss %.4f, val J %.3f, %.0f s", epoch + 1, phase.name, loss,
-                     val_loss, val_j, row["seconds"])
-            self._save_checkpoint(optimizer, epoch, history)
-            self._write_history(history)
+            if context.is_main:
+                log.info("epoch %d (%s): loss %.4f, val loss %.4f, val J %.3f, %.0f s", epoch + 1, phase.name, loss,
+                         val_loss, val_j, row["seconds"])
+                self._save_checkpoint(optimizer, epoch, history)
+                self._write_history(history)
         total = sum(r["seconds"] for r in history)
-        meta = {"history": history, "train_seconds": round(total, 1), "seed": self.config.seed,
-                "spec": json.loads(json.dumps(self.config.document, default=str)), **self.weights_meta()}
-        sha = self.export_weights(self.out / "weights.pt", meta)
-        summary = {"weights": str(self.out / "weights.pt"), "sha256": sha, "epochs": len(history),
-                   "train_seconds": round(total, 1), "final": history[-1] if history else None}
-        atomic_write_bytes(self.out / "summary.json", json.dumps(summary, indent=2).encode())
-        atomic_write_bytes(self.out / "model-card.md", self.model_card(summary, history).encode())
-        return summary
+        summary = None
+        if context.is_main:
+            meta = {"history": history, "train_seconds": round(total, 1), "seed": self.config.seed,
+                    "processes": context.world_size, "spec": json.loads(json.dumps(self.config.document, default=str)),
+                    **self.weights_meta()}
+            sha = self.export_weights(self.out / "weights.pt", meta)
+            summary = {"weights": str(self.out / "weights.pt"), "sha256": sha, "epochs": len(history),
+                       "train_seconds": round(total, 1), "processes": context.world_size,
+                       "backend": context.backend, "final": history[-1] if history else None}
+            atomic_write_bytes(self.out / "summary.json", json.dumps(summary, indent=2).encode())
+            atomic_write_bytes(self.out / "model-card.md", self.model_card(summary, history).encode())
+        # the others wait for rank 0's files, and return the same summary
+        return broadcast_object(context, summary)
 
     def _write_history(self, history: list[dict]) -> None:
         buffer = io.StringIO()
@@ -222,9 +296,12 @@ def trained_line(config: TrainConfig, summary: dict) -> str:
     import torch
 
     threads = torch.get_num_threads()
+    processes = summary.get("processes", 1)
+    where = (f"{threads} thread{'s' if threads != 1 else ''}" if processes == 1 else
+             f"{processes} processes under DDP ({summary.get('backend')}), {threads} thread{'s' if threads != 1 else ''} each")
     return (f"- trained with `eponet train {Path(config.file).name if config.file else '<spec>'}`, seed {config.seed}, "
             f"{summary['epochs']} epochs in {summary['train_seconds'] / 60:.1f} min on {platform.machine()} "
-            f"({threads} thread{'s' if threads != 1 else ''}, device {config.device})")
+            f"({where}, device {config.device})")
 
 
 def history_table(history: list[dict]) -> list[str]:

@@ -16,12 +16,12 @@ from eponet.core.spec import apply_overrides, default_cache_dir, parse_spec
 from eponet.core.registry import nearest
 from eponet.training.losses import LOSSES
 
-__all__ = ["TASKS", "TrainConfig", "Phase", "DataSource", "load_train_config", "parse_train_config"]
+__all__ = ["TASKS", "DEFAULT_TIMEOUT", "TrainConfig", "Phase", "DataSource", "load_train_config", "parse_train_config"]
 
 #: What ``eponet train`` can train: the EpO motion network, or the EpO+ fusion on top of a trained one.
 TASKS = ("motion_net", "fusion")
 TOP_LEVEL = ("task", "seed", "model", "geometry", "phases", "validation", "optimizer", "loss", "input_dropout",
-             "augment", "output", "cache", "device", "threads")
+             "augment", "output", "cache", "device", "threads", "distributed")
 FUSION_TOP_LEVEL = TOP_LEVEL + ("motion_net", "appearance", "clips")
 
 #: Shared by both tasks' optimiser sections.
@@ -68,6 +68,12 @@ _OUTPUT = (Param("dir", "path", None, "folder for checkpoints, weights, curves a
 _CACHE = (
     Param("enabled", "bool", True, "reuse cached flow, trajectories and ED"),
     Param("dir", "path", None, "cache folder (default $EPONET_CACHE or ~/.cache/eponet)", nullable=True),
+)
+#: Under torchrun: seconds a process waits for the others before the run fails (``distributed.timeout``).
+DEFAULT_TIMEOUT = 1800.0
+_DISTRIBUTED = (
+    Param("timeout", "float", DEFAULT_TIMEOUT, "under torchrun: seconds a process waits for the others (joining the run, each "
+          "collective) before the run fails; a process that dies is noticed at once", minimum=1.0),
 )
 _DAVIS = (
     Param("root", "path", None, "DAVIS-layout root (JPEGImages/<resolution>/<seq>/, Annotations/...)", required=True),
@@ -170,6 +176,7 @@ class TrainConfig:
     stages: dict = field(default_factory=dict)
     clips: dict = field(default_factory=dict)
     loss: dict = field(default_factory=lambda: {"name": "bce", "iou_weight": 1.0})
+    distributed: dict = field(default_factory=lambda: {"timeout": DEFAULT_TIMEOUT})
 
 
 def load_train_config(path: str | Path, overrides: list[str] = ()) -> TrainConfig:
@@ -237,6 +244,7 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
         problems.append(f"augment.crop: expected [height, width] of integers >= 16 or null, got {crop!r}")
     output = section("output", _OUTPUT)
     cache = section("cache", _CACHE)
+    distributed = section("distributed", _DISTRIBUTED)
     device = document.get("device", "auto")
     if device not in ("auto", "cpu", "cuda"):
         problems.append(f"device: expected one of 'auto', 'cpu', 'cuda', got {device!r}")
@@ -317,4 +325,5 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
         optimizer=optimizer, input_dropout=dropout, augment=augment, output_dir=resolve("output.dir", output["dir"]),
         cache_enabled=cache["enabled"], cache_dir=resolve("cache.dir", cache["dir"]) or default_cache_dir(),
         device=device, threads=threads, file=file, document=document, stages=stages, clips=clips, loss=loss,
+        distributed=distributed,
     )

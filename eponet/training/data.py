@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Sequence
 
 import cv2
 import numpy as np
@@ -61,21 +62,24 @@ def davis_masks(root: Path, resolution: str, name: str, stems: list[str], shape:
 
 
 def load_motion_sequences(geometry: Spec, root: Path, *, resolution: str, sequences: list[str] | None,
-                          exclude: list[str] = (), cache: Cache | None = None,
-                          features: bool = False) -> list[SequenceData]:
+                          exclude: list[str] = (), cache: Cache | None = None, features: bool = False,
+                          compute_order: Callable[[int], Sequence[int]] | None = None) -> list[SequenceData]:
     """Run the geometry stages of ``geometry`` (a validated spec with flow, trajectories and rigidity) on each
     DAVIS-layout sequence under ``root`` and pair the motion images with the ground-truth masks; with
-    ``features``, also the appearance stage of ``geometry`` (computed once, through the cache)."""
+    ``features``, also the appearance stage of ``geometry`` (computed once, through the cache).
+
+    ``compute_order(count)`` is the order in which to compute the ``count`` sequences (under DDP: this process's
+    share first, so that the processes fill the cache side by side); the list keeps the sequences' own order."""
     pipeline = Pipeline(geometry, cache=cache)
-    sources = discover_sequences(root, sequences=sequences, resolution=resolution)
-    out = []
-    for source in sources:
-        if source.name in exclude:
-            continue
+    sources = [s for s in discover_sequences(root, sequences=sequences, resolution=resolution) if s.name not in exclude]
+    order = list(compute_order(len(sources))) if compute_order else range(len(sources))
+    out: list[SequenceData | None] = [None] * len(sources)
+    for i in order:
+        source = sources[i]
         video = load_video(source, scale=geometry.input.scale, keep_full=False)
         result = pipeline.process(video)
         masks = davis_masks(Path(root), resolution, video.name, video.stems, video.shape)
         appearance = pipeline.appearance_features(video).astype(np.float16) if features else None
-        out.append(SequenceData(video.name, result.motion_images.astype(np.float16), masks, video.frames, appearance))
+        out[i] = SequenceData(video.name, result.motion_images.astype(np.float16), masks, video.frames, appearance)
         log.info("%s: %d frames of motion images", video.name, video.num_frames)
     return out

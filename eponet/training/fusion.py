@@ -8,6 +8,7 @@ clips, and input-dropout of the motion map on 20% of the frames.
 from __future__ import annotations
 
 import logging
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,10 +18,11 @@ from eponet.core.errors import InputError
 from eponet.core.inputs import discover_sequences
 from eponet.core.progress import track
 from eponet.core.types import Video
-from eponet.training.augment import drop_motion_maps, random_clip_crop_flip
+from eponet.training.augment import apply_clip_crop_flip, draw_clip_crop_flip, draw_motion_drops
 from eponet.training.base import Trainer, data_line, history_table, sequence_j, trained_line
 from eponet.training.config import DataSource, TrainConfig
 from eponet.training.data import load_motion_sequences
+from eponet.training.distributed import SINGLE, DistributedContext
 from eponet.training.losses import segmentation_loss
 
 __all__ = ["FusionSequence", "FusionTrainer", "probe_channels", "fusion_model_card"]
@@ -52,12 +54,13 @@ class FusionTrainer(Trainer):
     ``appearance_channels`` defaults to what the spec's appearance stage produces (probed on one frame).
     """
 
-    def __init__(self, config: TrainConfig, *, appearance_channels: int | None = None):
+    def __init__(self, config: TrainConfig, *, appearance_channels: int | None = None,
+                 context: DistributedContext = SINGLE):
         from eponet.fusion import ConvGRUFusion
 
         if appearance_channels is None:
             appearance_channels = probe_channels(config.stages["appearance"].build())
-        super().__init__(config)
+        super().__init__(config, context=context)
         self.model = ConvGRUFusion(appearance_channels, **config.model).to(self.device)
         self._motion_stage = None
 
@@ -71,13 +74,14 @@ class FusionTrainer(Trainer):
                  if s.name not in options["exclude"]]
         if not names:
             raise InputError(f"{root}: no training sequences left after exclusions")
-        out = []
-        for name in track(names, desc="fusion data", total=len(names)):
-            [seq] = load_motion_sequences(self.config.geometry, root, resolution=options["resolution"], sequences=[name],
-                                          cache=self.cache, features=True)
+        out: list[FusionSequence | None] = [None] * len(names)
+        # under DDP each process computes its share first, filling the cache for the others
+        for i in track(self.context.share_first(len(names)), desc="fusion data", total=len(names)):
+            [seq] = load_motion_sequences(self.config.geometry, root, resolution=options["resolution"],
+                                          sequences=[names[i]], cache=self.cache, features=True)
             saliency = self.motion_stage().predict(seq.motion.astype(np.float32))
-            out.append(FusionSequence(seq.name, seq.features, saliency.astype(np.float16), seq.masks))
-            log.info("%s: %d frames, features %s", name, len(seq.masks), seq.features.shape[1:])
+            out[i] = FusionSequence(seq.name, seq.features, saliency.astype(np.float16), seq.masks)
+            log.info("%s: %d frames, features %s", names[i], len(seq.masks), seq.features.shape[1:])
         return out
 
     def motion_stage(self):
@@ -115,37 +119,57 @@ class FusionTrainer(Trainer):
     def train_epoch(self, data: list[FusionSequence], optimizer, epoch: int, samples: int | None) -> float:
         import torch
 
-        rng = np.random.default_rng([self.config.seed, epoch])
-        clips = self.clips(data, rng)
-        order = rng.permutation(len(clips))
-        if samples is not None:
-            order = np.resize(order, samples)
-        batch_size = self.config.optimizer["batch_size"]
+        clips: list[tuple[int, int, int]] = []
+        epoch_rng = []
+
+        def draw(epoch: int) -> np.ndarray:
+            rng = np.random.default_rng([self.config.seed, epoch])
+            epoch_rng[:] = [rng]
+            clips[:] = self.clips(data, rng)
+            order = rng.permutation(len(clips))
+            return np.resize(order, samples) if samples is not None else order
+
+        sampler = self.epoch_sampler(draw, epoch)
+        [rng] = epoch_rng
+        batches = sampler.steps(self.config.optimizer["batch_size"])
         crop = tuple(self.config.augment["crop"]) if self.config.augment["crop"] else None
         dropout = self.config.input_dropout
         clip_value = self.config.optimizer["clip_gradients"]
-        self.model.train()
+        self.net.train()
         losses = []
-        batches = range(0, len(order), batch_size)
-        for start in track(batches, desc=f"epoch {epoch + 1}", total=len(batches)):
-            items = []
-            for s, t, length in (clips[i] for i in order[start : start + batch_size]):
+        for batch in track(batches, desc=f"epoch {epoch + 1}", total=len(batches)):
+            # the whole global batch's augmentation, drawn in the order one process draws it
+            chosen = [clips[sampler.sample(p)] for p in batch]
+            draws = []
+            for s, _, length in chosen:
                 seq = data[s]
-                features, saliency, masks = random_clip_crop_flip(
+                box = draw_clip_crop_flip(seq.features.shape[-2:], seq.masks.shape[-2:], crop,
+                                          self.config.augment["flip"], rng)
+                drops = (draw_motion_drops((length,), dropout["probability"], rng)
+                         if dropout["sequences"] is None or seq.name in dropout["sequences"] else None)
+                draws.append((box, drops))
+            items = []
+            for i in sampler.rows(batch):
+                (s, t, length), (box, drops) = chosen[i], draws[i]
+                seq = data[s]
+                features, saliency, masks = apply_clip_crop_flip(
                     seq.features[t : t + length].astype(np.float32), seq.saliency[t : t + length].astype(np.float32),
-                    seq.masks[t : t + length], crop, self.config.augment["flip"], rng)
-                if dropout["sequences"] is None or seq.name in dropout["sequences"]:
-                    saliency, _ = drop_motion_maps(saliency, dropout["probability"], rng)
+                    seq.masks[t : t + length], box)
+                if drops is not None:
+                    saliency[drops] = 0
                 items.append((features, saliency, masks))
             optimizer.zero_grad(set_to_none=True)
-            # clips of different lengths or sizes (short sequences, no crop) go through in groups of one shape
+            # clips of different lengths or sizes (short sequences, no crop) go through in groups of one shape;
+            # under DDP the gradients are averaged over the processes once, with the last group's
             groups: dict[tuple, list] = {}
             for item in items:
                 groups.setdefault(item[0].shape[:1] + item[0].shape[2:] + item[2].shape[1:], []).append(item)
             total = 0.0
-            for group in groups.values():
-                loss = self._clip_loss(*(np.stack(a) for a in zip(*group))) * (len(group) / len(items))
-                loss.backward()
+            for g, group in enumerate(groups.values()):
+                last = g == len(groups) - 1
+                with nullcontext() if last or not self.context.active else self.net.no_sync():
+                    loss = self._clip_loss(*(np.stack(a) for a in zip(*group))) * (len(group) / len(items))
+                    loss.backward()
                 total += loss.item()
             if clip_value is not None:
                 torch.nn.utils.clip_grad_value_(self.model.parameters(), clip_value)
@@ -163,28 +187,23 @@ class FusionTrainer(Trainer):
         f = torch.from_numpy(features).to(self.device)
         s = torch.from_numpy(saliency).to(self.device)
         y = torch.from_numpy(masks.astype(np.float32)).to(self.device)
-        logits = self.model.frame_logits(self.model(f, s).flatten(0, 1), s.flatten(0, 1))
+        logits = self.model.frame_logits(self.net(f, s).flatten(0, 1), s.flatten(0, 1))
         return segmentation_loss(logits, y.flatten(0, 1), **self.config.loss)
 
-    def validate(self, data: list[FusionSequence]) -> tuple[float, float]:
-        """(mean BCE loss per frame, mean J over sequences): each whole sequence in one bidirectional pass,
-        threshold 0.5, no CRF."""
+    def validate_sequence(self, model, seq: FusionSequence) -> tuple[float, int, float]:
+        """BCE loss sum, frames and J: the whole sequence in one bidirectional pass, threshold 0.5, no CRF."""
         import torch
         import torch.nn.functional as F
 
         from eponet.fusion import video_logits
 
-        model = self.inference_model()
-        losses, scores = [], []
-        for seq in data:
-            saliency = seq.saliency.astype(np.float32)
-            logits = video_logits(model, seq.features.astype(np.float32), saliency, window=None, device=self.device)
-            with torch.inference_mode():
-                logits = model.frame_logits(logits.to(self.device), torch.from_numpy(saliency).to(self.device)).cpu()
-            y = torch.from_numpy(seq.masks.astype(np.float32))
-            losses.append(float(F.binary_cross_entropy_with_logits(logits, y)) * len(y))
-            scores.append(sequence_j((torch.sigmoid(logits) >= 0.5).numpy(), seq.masks.astype(bool)))
-        return sum(losses) / sum(len(s.masks) for s in data), float(np.mean(scores))
+        saliency = seq.saliency.astype(np.float32)
+        logits = video_logits(model, seq.features.astype(np.float32), saliency, window=None, device=self.device)
+        with torch.inference_mode():
+            logits = model.frame_logits(logits.to(self.device), torch.from_numpy(saliency).to(self.device)).cpu()
+        y = torch.from_numpy(seq.masks.astype(np.float32))
+        loss = float(F.binary_cross_entropy_with_logits(logits, y)) * len(y)
+        return loss, len(y), sequence_j((torch.sigmoid(logits) >= 0.5).numpy(), seq.masks.astype(bool))
 
     # -- records ---------------------------------------------------------------------------------
     def weights_meta(self) -> dict:

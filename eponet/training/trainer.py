@@ -11,11 +11,12 @@ import numpy as np
 from eponet.core.errors import InputError
 from eponet.core.io import atomic_write_bytes
 from eponet.core.progress import track
-from eponet.training.augment import InputDropout, random_crop_flip, shift_flow
+from eponet.training.augment import ED_CHANNEL, InputDropout, apply_crop_flip, draw_crop_flip, draw_flow_shift
 from eponet.training.base import (HISTORY_FIELDS, Trainer, data_line, history_table, plot_history, sequence_j,
                                   trained_line)
 from eponet.training.config import DataSource, TrainConfig
 from eponet.training.data import SequenceData, load_motion_sequences
+from eponet.training.distributed import SINGLE, DistributedContext, barrier
 from eponet.training.losses import segmentation_loss
 
 __all__ = ["MotionNetTrainer", "sequence_j", "model_card", "plot_history", "HISTORY_FIELDS"]
@@ -26,12 +27,12 @@ log = logging.getLogger(__name__)
 class MotionNetTrainer(Trainer):
     """Trains an :class:`~eponet.nets.EpoUNet` as a :class:`TrainConfig` says."""
 
-    def __init__(self, config: TrainConfig):
+    def __init__(self, config: TrainConfig, *, context: DistributedContext = SINGLE):
         import torch
 
         from eponet.nets import EpoUNet
 
-        super().__init__(config)
+        super().__init__(config, context=context)
         self.model = EpoUNet(**self.model_config()).to(self.device).to(memory_format=torch.channels_last)
         self.dropout = InputDropout(**config.input_dropout)
 
@@ -50,7 +51,8 @@ class MotionNetTrainer(Trainer):
             root, resolution = options["root"], options["resolution"]
             sequences, exclude = options["sequences"], options["exclude"]
         data = load_motion_sequences(self.config.geometry, Path(root), resolution=resolution,
-                                     sequences=sequences, exclude=exclude, cache=self.cache)
+                                     sequences=sequences, exclude=exclude, cache=self.cache,
+                                     compute_order=self.context.share_first)
         if not data:
             raise InputError(f"{root}: no training sequences left after exclusions")
         return data
@@ -63,10 +65,18 @@ class MotionNetTrainer(Trainer):
         root = Path(options["dir"])
         marker = root / "eponet-rbsf.json"
         recipe = {k: options[k] for k in ("sequences", "frames", "size", "seed")}
-        if not (marker.is_file() and json.loads(marker.read_text()) == recipe):
+
+        def ready() -> bool:
+            return marker.is_file() and json.loads(marker.read_text()) == recipe
+
+        if self.context.is_main and not ready():  # under DDP rank 0 writes it, the others wait
             log.info("generating RBSF-style data in %s", root)
             write_dataset(root, options["sequences"], options["frames"], size, options["seed"], flow=False, depth=False)
             atomic_write_bytes(marker, json.dumps(recipe).encode())
+        barrier(self.context)
+        if not ready():
+            raise InputError(f"{root}: rank 0 generated the RBSF-style data there, but {self.context.label} does not "
+                             "see it; put rbsf.dir on storage every machine shares")
         return root, f"{size[1]}p"
 
     # -- optimisation ----------------------------------------------------------------------------
@@ -78,34 +88,44 @@ class MotionNetTrainer(Trainer):
     def train_epoch(self, data: list[SequenceData], optimizer, epoch: int, samples: int | None) -> float:
         import torch
 
-        rng = np.random.default_rng([self.config.seed, epoch])
         index = np.array([(s, t) for s, seq in enumerate(data) for t in range(len(seq.masks))])
-        order = rng.permutation(len(index))
-        if samples is not None:
-            order = np.resize(order, samples)
-        batch_size = self.config.optimizer["batch_size"]
+        epoch_rng = []
+
+        def draw(epoch: int) -> np.ndarray:
+            rng = np.random.default_rng([self.config.seed, epoch])
+            epoch_rng[:] = [rng]
+            order = rng.permutation(len(index))
+            return np.resize(order, samples) if samples is not None else order
+
+        sampler = self.epoch_sampler(draw, epoch)
+        [rng] = epoch_rng
+        batches = sampler.steps(self.config.optimizer["batch_size"])
         crop = tuple(self.config.augment["crop"]) if self.config.augment["crop"] else None
-        self.model.train()
+        self.net.train()
         losses = []
-        batches = range(0, len(order), batch_size)
-        for start in track(batches, desc=f"epoch {epoch + 1}", total=len(batches)):
+        for batch in track(batches, desc=f"epoch {epoch + 1}", total=len(batches)):
+            # the whole global batch's augmentation, drawn in the order one process draws it
+            frames = [index[sampler.sample(p)] for p in batch]
+            boxes = [draw_crop_flip(data[s].masks.shape[1:], crop, self.config.augment["flip"], rng) for s, _ in frames]
+            # sequences of different sizes (without a crop, or smaller than it): the batch's smallest
+            h, w = min(b.height for b in boxes), min(b.width for b in boxes)
+            chosen, replacement = self.dropout.draw(len(batch), (h, w), epoch, rng)
+            shifts = draw_flow_shift(len(batch), self.config.augment.get("flow_shift", 0.0), rng)
             images, masks = [], []
-            for s, t in index[order[start : start + batch_size]]:
-                image, mask = random_crop_flip(data[s].motion[t].astype(np.float32), data[s].masks[t], crop,
-                                               self.config.augment["flip"], rng)
+            for i in sampler.rows(batch):
+                s, t = frames[i]
+                image, mask = apply_crop_flip(data[s].motion[t].astype(np.float32), data[s].masks[t], boxes[i])
+                image, mask = image[:, :h, :w], mask[:h, :w]
+                if chosen[i]:
+                    image[ED_CHANNEL] = replacement[np.count_nonzero(chosen[:i])]
+                if shifts is not None:
+                    image[:ED_CHANNEL] += shifts[i]
                 images.append(image)
                 masks.append(mask)
-            shapes = {m.shape for m in masks}
-            if len(shapes) > 1:  # sequences of different sizes without a crop: train them one by one
-                h, w = min(s[0] for s in shapes), min(s[1] for s in shapes)
-                images = [i[:, :h, :w] for i in images]
-                masks = [m[:h, :w] for m in masks]
-            batch, _ = self.dropout.apply(np.stack(images), epoch, rng)
-            batch = shift_flow(batch, self.config.augment.get("flow_shift", 0.0), rng)
-            x = torch.from_numpy(batch).to(self.device)
+            x = torch.from_numpy(np.stack(images)).to(self.device)
             x = self.model.select_inputs(x).contiguous(memory_format=torch.channels_last)
             y = torch.from_numpy(np.stack(masks).astype(np.float32)).to(self.device)[:, None]
-            loss = segmentation_loss(self.model(x), y, **self.config.loss)
+            loss = segmentation_loss(self.net(x), y, **self.config.loss)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -113,28 +133,23 @@ class MotionNetTrainer(Trainer):
             losses.append(loss.item())
         return float(np.mean(losses))
 
-    def validate(self, data: list[SequenceData]) -> tuple[float, float]:
-        """(mean BCE loss, mean J over sequences) of whole frames, threshold 0.5, no CRF."""
+    def validate_sequence(self, model, seq: SequenceData) -> tuple[float, int, float]:
+        """BCE loss sum, frames and J of whole frames, threshold 0.5, no CRF."""
         import torch
         import torch.nn.functional as F
 
-        model = self.inference_model()
         model.eval()
-        losses, scores = [], []
+        loss, probs = 0.0, []
         with torch.inference_mode():
-            for seq in data:
-                probs = []
-                for start in range(0, len(seq.masks), 8):
-                    x = torch.from_numpy(seq.motion[start : start + 8].astype(np.float32)).to(self.device)
-                    x = model.select_inputs(x).contiguous(memory_format=torch.channels_last)
-                    logits = model(x)
-                    y = torch.from_numpy(seq.masks[start : start + 8].astype(np.float32)).to(self.device)[:, None]
-                    losses.append(float(F.binary_cross_entropy_with_logits(logits, y)) * len(y))
-                    probs.append(torch.sigmoid(logits)[:, 0].cpu().numpy())
-                pred = np.concatenate(probs) >= 0.5
-                scores.append(sequence_j(pred, seq.masks.astype(bool)))
-        frames = sum(len(s.masks) for s in data)
-        return sum(losses) / frames, float(np.mean(scores))
+            for start in range(0, len(seq.masks), 8):
+                x = torch.from_numpy(seq.motion[start : start + 8].astype(np.float32)).to(self.device)
+                x = model.select_inputs(x).contiguous(memory_format=torch.channels_last)
+                logits = model(x)
+                y = torch.from_numpy(seq.masks[start : start + 8].astype(np.float32)).to(self.device)[:, None]
+                loss += float(F.binary_cross_entropy_with_logits(logits, y)) * len(y)
+                probs.append(torch.sigmoid(logits)[:, 0].cpu().numpy())
+        pred = np.concatenate(probs) >= 0.5
+        return loss, len(seq.masks), sequence_j(pred, seq.masks.astype(bool))
 
     def model_card(self, summary: dict, history: list[dict]) -> str:
         return model_card(self.config, summary, history)
