@@ -18,6 +18,17 @@ def shared_data_dir() -> Path:
 
 
 @pytest.fixture
+def one_torch_thread():
+    """torch on one thread for the test (restored after): small networks run faster and deterministically."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture
 def shared_data() -> Path:
     path = shared_data_dir()
     if not path.is_dir():

@@ -36,12 +36,7 @@ REPO = Path(__file__).resolve().parents[2]
 LAUNCH_TIMEOUT = 300  # seconds for a whole 2-process run (start-up of torch included, on a busy 2-core machine)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 # -- the sampler and helpers, no processes ---------------------------------------------------------------------

@@ -10,12 +10,7 @@ from eponet.training.fusion import FusionSequence, FusionTrainer
 from eponet.training.trainer import sequence_j
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def easy_fusion_set(count=3, frames=10, size=(32, 48), channels=4, seed=0):

@@ -10,6 +10,7 @@ from eponet.core.devices import DEVICES, torch_device
 from eponet.core.errors import MissingWeights, StageError
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
+from eponet.plugins.fusion import window_problems
 from eponet.weights import resolve_weights
 
 __all__ = ["ConvGRUStage", "load_fusion"]
@@ -74,9 +75,7 @@ def _check(params: dict) -> list[str]:
         resolve_weights(params["weights"], sha256=params.get("sha256"), kind="fusion")
     except MissingWeights as exc:
         problems.append(exc.problem)
-    window = params.get("window")
-    if window is not None and params["overlap"] >= window:
-        problems.append(f"overlap: expected fewer frames than window ({window}), got {params['overlap']}")
+    problems += window_problems(params)
     return problems
 
 

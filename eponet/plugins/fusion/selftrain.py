@@ -7,6 +7,7 @@ import numpy as np
 
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
+from eponet.plugins.fusion import window_problems
 
 __all__ = ["SelfTrainStage"]
 
@@ -31,10 +32,7 @@ class SelfTrainStage:
 
 
 def _check(params: dict) -> list[str]:
-    problems = []
-    window = params.get("window")
-    if window is not None and params["overlap"] >= window:
-        problems.append(f"overlap: expected fewer frames than window ({window}), got {params['overlap']}")
+    problems = window_problems(params)
     if params["background"] >= params["foreground"]:
         problems.append(f"background: expected a threshold below foreground ({params['foreground']}), "
                         f"got {params['background']}")

@@ -13,12 +13,7 @@ from eponet.plugins.appearance.none import NoAppearance
 ESPRESSO, CATS = 967, {281, 282, 285}  # ImageNet classes: espresso; tabby, tiger cat, Egyptian cat
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")

@@ -7,12 +7,7 @@ from eponet.fusion import ConvGRUFusion, video_logits, window_starts, window_wei
 from eponet.plugins.fusion.convgru import ConvGRUStage
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _model(channels=6, seed=0, **kwargs):

@@ -1,17 +1,11 @@
 import numpy as np
 import pytest
-import torch
 
 from eponet.fusion.selftrain import MIN_SAMPLES, fit_appearance, self_trained_probability
 from eponet.plugins.fusion.selftrain import SelfTrainStage
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _scene(frames=4, size=(12, 16), channels=6, seed=0):
