@@ -19,6 +19,8 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
         --rigidity degeneracy=parallax border_prior=0.15     # the same networks on other ED
     python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-epo-st --preset epo-st
         # the same networks through another preset (here with per-video self-training; --fusion key=value)
+    python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus
+        # EpO+: each fold's fusion (examples/train-epo-plus.yaml) trained on the fold's frozen network
     python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--flow-cache DIR]
 
 Trained folds (``weights.pt`` present) are reused; ``<out>/kfold.json`` holds every figure, and a later call
@@ -39,8 +41,11 @@ import yaml
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from epo_ablation import authors_crf, recipe_without, run_validation, train_variant, validation_root  # noqa: E402
+from epo_ablation import (absolutise, authors_crf, recipe_without, run_validation,  # noqa: E402
+                          train_variant, validation_root)
 from geometry_davis_auc import DAVIS  # noqa: E402
+
+FUSION_RECIPE = ROOT / "examples" / "train-epo-plus.yaml"
 
 #: The paper's Table 3 attributes.
 ATTRIBUTES = ("AC", "DB", "FM", "MB", "OCC")
@@ -104,16 +109,33 @@ def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None) -> d
     return out
 
 
+def fusion_recipe_without(sequences: list[str], motion_net: Path) -> dict:
+    """The EpO+ fusion recipe (``examples/train-epo-plus.yaml``, absolute paths) on top of the frozen
+    ``motion_net``, trained without ``sequences`` and validated on them."""
+    doc = absolutise(yaml.safe_load(FUSION_RECIPE.read_text()), FUSION_RECIPE.parent)
+    doc["motion_net"]["weights"] = [str(motion_net.resolve())]
+    doc["phases"][-1]["data"]["davis"]["exclude"] = list(sequences)
+    doc["validation"]["davis"]["sequences"] = list(sequences)
+    return doc
+
+
 def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: list[int], rigidity: dict,
             weights: Path | None = None, save: tuple[str, ...] = ("masks",), preset: str = "epo",
-            fusion: dict | None = None) -> dict[str, dict]:
+            fusion: dict | None = None, plus: bool = False) -> dict[str, dict]:
     """Train one network per fold (``jobs`` at once, one thread each; into ``weights`` or ``out``) and score
-    its held-out sequences, with the ``rigidity`` settings merged onto the preset's when given."""
+    its held-out sequences, with the ``rigidity`` settings merged onto the preset's when given. ``plus``: then
+    train each fold's EpO+ fusion on that fold's frozen network (into ``out/fold<i>/fusion``) and score the
+    ``epo+`` preset with both."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
     def train(i):
-        return train_variant(weights / f"fold{i}", lambda: recipe_without(split[i]), threads, retrain=False)
+        seconds = train_variant(weights / f"fold{i}", lambda: recipe_without(split[i]), threads, retrain=False)
+        if plus:
+            net = weights / f"fold{i}" / "weights.pt"
+            seconds += train_variant(out / f"fold{i}" / "fusion", lambda: fusion_recipe_without(split[i], net),
+                                     threads, retrain=False)
+        return seconds
 
     with ThreadPoolExecutor(jobs) as pool:
         seconds = dict(zip(which, pool.map(train, which)))
@@ -126,7 +148,10 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             stages["rigidity"] = {"plugin": "trifocal", **rigidity}
         if crf is not None:
             stages["refiner"] = crf
-        if fusion:
+        if plus:
+            stages["fusion"] = {"plugin": "convgru", "weights": str(out / f"fold{i}" / "fusion" / "weights.pt"),
+                                **(fusion or {})}
+        elif fusion:
             stages["fusion"] = fusion
         manifest = run_validation(stages, out / f"fold{i}" / "heldout", davis, split[i], save=save, preset=preset,
                                   evaluate={"dataset": "davis2016", "t": True})
@@ -138,7 +163,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--what", choices=("ed", "epo"), required=True)
+    parser.add_argument("--what", choices=("ed", "epo", "epo+"), required=True)
     parser.add_argument("--out", type=Path, default=None, help="default: runs/kfold-<what>")
     parser.add_argument("--jobs", type=int, default=2, help="folds trained at once (one thread each)")
     parser.add_argument("--folds", default=None, help="comma-separated fold indices (default: all)")
@@ -172,11 +197,15 @@ def main(argv=None) -> int:
         meta = {"rigidity": rigidity}
     else:
         fusion = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.fusion)}
+        plus = args.what == "epo+"
+        preset = "epo+" if plus else args.preset
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
-                               tuple(args.save.split(",")), args.preset, fusion)
+                               tuple(args.save.split(",")), preset, fusion, plus)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
-        if args.preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)
+        if plus:
+            meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
+        if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)
             meta.update(preset=args.preset, fusion=fusion)
     previous = out / "kfold.json"
     if previous.is_file():  # folds scored by an earlier call with the same settings are kept

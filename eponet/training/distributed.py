@@ -12,6 +12,7 @@ running statistics, which DDP copies to the others before every forward.
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import re
@@ -150,13 +151,30 @@ def distributed_session(device: str = "auto", timeout: float = DEFAULT_TIMEOUT) 
         raise DistributedError(f"{context.label}: could not join the {world} processes of the run at {where} "
                                f"within {timeout:g} s ({backend}): {_one_line(exc)}") from exc
     log.debug("%s: joined the process group (%s, %s)", context.label, backend, where)
+    ended = False
     try:
         yield context
+        ended = True
     finally:
+        _leave(context, ended)
+
+
+def _leave(context: DistributedContext, ended: bool) -> None:
+    """Leave the process group. After a run that ended well every process first waits for the others (no process
+    tears its connections down while a peer still uses them), and what still refers to the group (a DDP
+    wrapper's reducer in a reference cycle) is collected first: gloo's worker threads are then joined while the
+    interpreter is whole, not at its finalisation, where they abort the process ("terminate called without an
+    active exception", exit -6)."""
+    if ended:
         try:
-            dist.destroy_process_group()
-        except Exception:  # a peer that died may leave nothing to tear down cleanly
-            log.debug("destroy_process_group failed", exc_info=True)
+            dist.barrier()
+        except Exception:
+            log.debug("%s: the closing barrier failed", context.label, exc_info=True)
+    gc.collect()
+    try:
+        dist.destroy_process_group()
+    except Exception:  # a peer that died may leave nothing to tear down cleanly
+        log.debug("destroy_process_group failed", exc_info=True)
 
 
 @contextmanager
