@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .cache import Cache, code_fingerprint, content_key, factory_module
-from .errors import EponetError, OutputError, SequenceFailures, StageError
+from .errors import EponetError, InputError, OutputError, SequenceFailures, StageError
 from .graph import GRAPH, check_stage, stage_kind
 from .html_report import write_report
 from .inputs import SequenceSource, discover_sequences, iter_frames, processing_size
@@ -226,8 +226,10 @@ class Pipeline:
         line's ``--set`` overrides and cache options) is recorded as given. The records of earlier runs into the
         same ``output.dir`` move into the new record's ``runs`` list, oldest first. Returns the manifest.
 
-        A corpus entry that is missing or unreadable, and with ``run.executor: ray`` any sequence that fails, is
-        recorded under ``failed`` while the others run; then :class:`SequenceFailures` is raised."""
+        Of several sequences, a corpus entry that is missing or unreadable, a sequence whose input or a stage fails
+        on it (with ``run.executor: ray`` any failure, a lost worker included) is recorded under ``failed`` while
+        the others run; then :class:`SequenceFailures` is raised. A failure of the output folder (a full disk)
+        stops the run."""
         spec = self.spec
         started = time.time()
         sources = discover_sequences(spec.input.path, sequences=spec.input.sequences,
@@ -274,6 +276,9 @@ class Pipeline:
             log.info("%s", stage_times_line(name, entry))
             log.info("%d/%d sequences done, %.1f s elapsed", len(done), len(todo), time.time() - started)
 
+        # of several sequences, one whose input or stage fails is recorded and the others go on (a run of one
+        # sequence fails with that sequence's own error)
+        isolate = failed if len(sources) > 1 else None
         total = sum(s.count for s in todo) if all(s.count for s in todo) else None
         with progress.RunProgress(total).active():
             if spec.run.executor == "ray":
@@ -282,9 +287,16 @@ class Pipeline:
                 manifest["ray"] = run_on_ray(self, todo, finished, failed)
             elif workers <= 1:
                 for source in todo:
-                    finished(source.name, self.run_sequence(source))
+                    try:
+                        entry = self.run_sequence(source)
+                    except (InputError, StageError) as exc:
+                        if isolate is None:
+                            raise
+                        isolate(source.name, str(exc), exc.exit_code)
+                        continue
+                    finished(source.name, entry)
             else:
-                run_in_workers(self, todo, workers, finished)
+                run_in_workers(self, todo, workers, finished, isolate)
         manifest["total_seconds"] = round(time.time() - started, 3)
         _write_manifest(spec.output.dir / "run.json", manifest)  # the record is kept whatever scoring does
         if failures:

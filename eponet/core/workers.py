@@ -7,7 +7,7 @@ from __future__ import annotations
 import os
 
 from .cache import Cache
-from .errors import EponetError
+from .errors import EponetError, InputError, StageError
 from .inputs import SequenceSource
 from .progress import listening
 from .spec import Spec
@@ -80,7 +80,11 @@ def _rebuilt_error(name: str, exit_code: int, message: str) -> EponetError:
     return _WorkerError(message, exit_code)
 
 
-def run_in_workers(pipeline, sources: list[SequenceSource], workers: int, finished) -> None:
+def run_in_workers(pipeline, sources: list[SequenceSource], workers: int, finished, isolate=None) -> None:
+    """Run ``sources`` on ``workers`` spawned processes; ``finished(name, entry)`` for each sequence done. A
+    sequence whose input or stage fails goes to ``isolate(name, reason, exit_code)`` when given (the others go
+    on); any other failure, or any failure without ``isolate``, lets the running sequences finish, starts no
+    more and is raised."""
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
@@ -103,8 +107,12 @@ def run_in_workers(pipeline, sources: list[SequenceSource], workers: int, finish
                     status, value = future.result()
                     if status == "ok":
                         finished(source.name, value)  # also after an error: what finished is kept
+                        continue
+                    failure = _rebuilt_error(*value)
+                    if isolate is not None and isinstance(failure, (InputError, StageError)):
+                        isolate(source.name, str(failure), failure.exit_code)
                     elif error is None:
-                        error = _rebuilt_error(*value)
+                        error = failure
                         for other in futures:  # those not started yet; running ones finish
                             other.cancel()
         except BaseException:

@@ -1,5 +1,5 @@
 """Neural networks (torch modules), kept free of pipeline concerns."""
 
-from .unet import EpoUNet, INPUT_CHANNELS
+from .unet import INPUT_CHANNELS, EpoUNet, InferenceUNet
 
-__all__ = ["EpoUNet", "INPUT_CHANNELS"]
+__all__ = ["EpoUNet", "INPUT_CHANNELS", "InferenceUNet"]

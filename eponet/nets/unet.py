@@ -8,7 +8,7 @@ from torch import nn
 
 from eponet.core.motion import ED_ENCODINGS, encode_ed
 
-__all__ = ["EpoUNet", "INPUT_CHANNELS"]
+__all__ = ["EpoUNet", "INPUT_CHANNELS", "InferenceUNet"]
 
 #: Which channels of a (dx, dy, ED) motion image each input modality uses.
 INPUT_CHANNELS = {"ed+flow": (0, 1, 2), "flow": (0, 1), "ed": (2,)}
@@ -90,3 +90,73 @@ class EpoUNet(nn.Module):
             ed = self.channels.index(2)
             x[:, ed] = encode_ed(x[:, ed], self.ed_encoding)
         return x
+
+
+def _folded(block: nn.Sequential) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weight ``(out, in, k, k)`` and bias ``(out,)`` of a conv + BatchNorm block with the BatchNorm's running
+    statistics folded into the convolution (what the pair computes in eval mode)."""
+    conv, norm = block[0], block[1]
+    scale = norm.weight / torch.sqrt(norm.running_var + norm.eps)
+    weight = conv.weight * scale[:, None, None, None]
+    bias = norm.bias - norm.running_mean * scale
+    if conv.bias is not None:
+        bias = bias + conv.bias * scale
+    return weight.detach().clone(), bias.detach().clone()
+
+
+class InferenceUNet(nn.Module):
+    """An :class:`EpoUNet` in eval mode, rebuilt for fast inference: every BatchNorm folded into its convolution,
+    the ReLUs in place, each decoder convolution of the concatenation [upsampled, skip] as the sum of two
+    convolutions (the concatenated copy at full resolution cost more than the convolution), the 1x1 head and
+    classifier as matrix products over channels-last pixels (oneDNN would run them through its slow path). The same function of the input as ``model.eval()``, to float32 rounding
+    (about 1e-5 on the logits); weights are copied, so later changes to ``model`` do not reach it.
+
+    Input and output as :class:`EpoUNet` (``select_inputs`` included); channels-last input is fastest.
+    """
+
+    def __init__(self, model: EpoUNet):
+        super().__init__()
+        self.config, self.channels, self.ed_encoding = dict(model.config), model.channels, model.ed_encoding
+        frozen = lambda tensor: nn.Parameter(tensor.contiguous(), requires_grad=False)  # noqa: E731
+        self.convs = nn.ParameterList()  # encoder blocks, then the bottleneck: weight, bias
+        for block in [*model.encoder, model.bottleneck]:
+            for tensor in _folded(block):
+                self.convs.append(frozen(tensor))
+        # decoder blocks: the convolution of the concatenation [upsampled, skip] as the sum of one convolution
+        # of each part (no concatenated copy at full resolution): weight of the upsampled part, its bias, weight
+        # of the skip's part
+        self.decoder = nn.ParameterList()
+        cin = model.config["widths"][-1]
+        for block in model.decoder:
+            weight, bias = _folded(block)
+            self.decoder.extend([frozen(weight[:, :cin]), frozen(bias), frozen(weight[:, cin:])])
+            cin = weight.shape[0]
+        self.depth = len(model.encoder)
+        head_weight, head_bias = _folded(model.head)
+        self.head_weight = nn.Parameter(head_weight[:, :, 0, 0], requires_grad=False)
+        self.head_bias = nn.Parameter(head_bias, requires_grad=False)
+        self.classifier_weight = nn.Parameter(model.classifier.weight.detach()[:, :, 0, 0].clone(), requires_grad=False)
+        self.classifier_bias = nn.Parameter(model.classifier.bias.detach().clone(), requires_grad=False)
+
+    def _conv(self, index: int, x: torch.Tensor) -> torch.Tensor:
+        weight, bias = self.convs[2 * index], self.convs[2 * index + 1]
+        return F.relu_(F.conv2d(x, weight, bias, padding=weight.shape[-1] // 2))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        skips = []
+        for i in range(self.depth):
+            x = self._conv(i, x)
+            skips.append(x)
+            x = F.max_pool2d(x, 2, ceil_mode=True)
+        x = self._conv(self.depth, x)
+        for i, skip in enumerate(reversed(skips)):
+            up_weight, bias, skip_weight = self.decoder[3 * i : 3 * i + 3]
+            x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            pad = up_weight.shape[-1] // 2
+            x = F.conv2d(x, up_weight, bias, padding=pad).add_(F.conv2d(skip, skip_weight, padding=pad))
+            x = F.relu_(x)
+        pixels = x.permute(0, 2, 3, 1)  # (B, H, W, C): a view of a channels-last tensor
+        hidden = F.relu_(F.linear(pixels, self.head_weight, self.head_bias))
+        return F.linear(hidden, self.classifier_weight, self.classifier_bias).permute(0, 3, 1, 2)
+
+    select_inputs = EpoUNet.select_inputs

@@ -71,12 +71,15 @@ def test_nothing_half_written_on_a_corrupt_frame(tmp_path):
     paths = write_frames(root / "JPEGImages" / "480p" / "b", textured_frames(3))
     paths[2].write_bytes(paths[2].read_bytes()[:60])  # valid header, truncated body
     out = tmp_path / "out"
-    with pytest.raises(InputError, match=r"b/00002.png"):
+    from eponet.core.errors import SequenceFailures
+
+    with pytest.raises(SequenceFailures, match=r"b/00002.png"):
         Pipeline(_spec(root, out, tmp_path / "cache")).run()
     assert (out / "a" / "flow").is_dir()  # the complete sequence is there
     assert not (out / "b").exists()
-    # run.json is written per finished sequence: it lists the complete one only
-    assert list(json.loads((out / "run.json").read_text())["sequences"]) == ["a"]
+    # run.json is written per finished sequence: it lists the complete one only, and the failed one
+    record = json.loads((out / "run.json").read_text())
+    assert list(record["sequences"]) == ["a"] and list(record["failed"]) == ["b"]
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no partial folders left
 
 
@@ -259,3 +262,33 @@ def test_an_edited_third_party_plugin_does_not_reuse_stale_cache_entries(frames_
     edited, flow = run("edited")
     assert edited["cached"] == [] and np.allclose(flow, 2.5)
     code_fingerprint.cache_clear()
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_sequence_that_fails_on_its_frames_does_not_stop_the_others(tmp_path, caplog, workers):
+    import dataclasses
+
+    from eponet.core.errors import SequenceFailures
+
+    for name in ("a", "b", "c"):
+        write_frames(tmp_path / "corpus" / name, textured_frames())
+    broken = tmp_path / "corpus" / "b" / "00003.png"
+    broken.write_bytes(broken.read_bytes()[:60])  # its header reads, its pixels do not: fails while running
+    listing = tmp_path / "corpus" / "list.txt"
+    listing.write_text("a\nb\nc\n")
+    out = tmp_path / "out"
+    spec = _spec(listing, out, tmp_path / "cache")
+    spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, workers=workers))
+    with caplog.at_level("ERROR"), pytest.raises(SequenceFailures) as failure:
+        Pipeline(spec).run()
+    assert failure.value.exit_code == 2 and str(failure.value).startswith("1 of 3 sequences failed (")
+    assert "b/00003.png" in str(failure.value) and "b: failed: " in caplog.text
+    record = json.loads((out / "run.json").read_text())
+    assert sorted(record["sequences"]) == ["a", "c"] and list(record["failed"]) == ["b"]
+    assert sorted(p.name for p in out.iterdir()) == ["a", "c", "run.json"]  # nothing half-written of b
+    assert len(list((out / "c" / "panels").iterdir())) == 5
+    # one sequence alone fails with its own error, as before
+    alone = dataclasses.replace(spec, input=dataclasses.replace(spec.input, path=tmp_path / "corpus" / "b"),
+                                output=dataclasses.replace(spec.output, dir=tmp_path / "alone"))
+    with pytest.raises(InputError, match="00003.png"):
+        Pipeline(alone).run()

@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from eponet.nets import EpoUNet
+from eponet.nets import EpoUNet, InferenceUNet
 
 
 @pytest.mark.parametrize("inputs, channels", [("ed+flow", 3), ("flow", 2), ("ed", 1)])
@@ -50,3 +50,39 @@ def test_bad_configuration_is_a_clear_error():
         EpoUNet(widths=(8, 16))
     with pytest.raises(ValueError, match="ed_encoding: expected one of clip, log"):
         EpoUNet(ed_encoding="sqrt")
+
+
+def _trained_like(model: EpoUNet) -> EpoUNet:
+    """``model`` with BatchNorm affine parameters and running statistics far from their initial values (a
+    folded BatchNorm that ignored any of them would show)."""
+    generator = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        for module in model.modules():
+            if isinstance(module, torch.nn.BatchNorm2d):
+                c = module.num_features
+                module.weight.copy_(torch.rand(c, generator=generator) * 2 + 0.2)
+                module.bias.copy_(torch.randn(c, generator=generator))
+                module.running_mean.copy_(torch.randn(c, generator=generator))
+                module.running_var.copy_(torch.rand(c, generator=generator) * 3 + 0.1)
+        model.classifier.weight.normal_(0.0, 1.0, generator=generator)  # (initialised at 0.01: a flat output)
+        model.classifier.bias.fill_(0.3)
+    return model.eval()
+
+
+@pytest.mark.parametrize("depth, size", [(2, (37, 53)), (4, (60, 107))])
+def test_the_inference_network_computes_what_the_network_computes_in_eval_mode(depth, size):
+    torch.manual_seed(1)
+    model = _trained_like(EpoUNet(depth=depth, widths=(4, 8, 8, 16), head_channels=8, ed_encoding="log"))
+    fast = InferenceUNet(model)
+    x = torch.randn(3, 3, *size) * 2
+    with torch.inference_mode():
+        expected = model(model.select_inputs(x))
+        inputs = fast.select_inputs(x).contiguous(memory_format=torch.channels_last)
+        got = fast(inputs)
+    assert got.shape == expected.shape == (3, 1, *size)
+    assert float((got - expected).abs().max()) < 1e-4 * float(expected.abs().max())
+    assert float(expected.std()) > 0.1  # not a trivially constant output
+    assert fast.config == model.config and not any(p.requires_grad for p in fast.parameters())
+    with torch.no_grad():  # a copy: the network it came from may change afterwards
+        model.classifier.bias.add_(5.0)
+        assert torch.equal(fast(inputs), got)

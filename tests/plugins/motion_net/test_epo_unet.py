@@ -147,3 +147,12 @@ def test_epo_preset_on_the_embedded_demo_reaches_the_target_j(tmp_path):
     manifest = json.loads((out / "run.json").read_text())
     assert manifest["plugins"]["motion_net"]["plugin"] == "epo_unet"
     assert manifest["evaluation"]["overall"]["J"]["mean"] >= 0.6
+
+
+def test_bfloat16_precision_stays_close_to_float32():
+    motion = np.random.default_rng(3).random((2, 3, 48, 80), dtype=np.float32) * 2 - 0.5
+    full = EpoUNetStage(weights="epo-davis", device="cpu").predict(motion)
+    half = EpoUNetStage(weights="epo-davis", device="cpu", precision="bfloat16").predict(motion)
+    assert half.dtype == np.float32 and half.shape == full.shape
+    assert 0 < np.abs(half - full).max() < 0.1  # bfloat16 has 8 bits of mantissa: close, not equal
+    assert np.mean((half > 0.5) != (full > 0.5)) < 0.01

@@ -62,3 +62,40 @@ def test_max_size_caps_the_crf_resolution():
     np.testing.assert_array_equal(densecrf_mask(frame, prob, max_size=longer // 2),
                                   densecrf_mask(frame, prob, scale=(longer // 2) / longer))
     np.testing.assert_array_equal(densecrf_mask(frame, prob, max_size=longer * 2), densecrf_mask(frame, prob))
+
+
+def _small_object_scene(seed=3):
+    """A 30x40 px green patch on a wide textured frame (the box around it is a fifth of the frame) and a noisy
+    probability of it: low everywhere else, and one pixel in a far corner above 0.5 nowhere (only the patch)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    height, width = 120, 200
+    truth = np.zeros((height, width), np.uint8)
+    truth[40:70, 120:160] = 1
+    frame = np.where(truth[..., None], [60, 190, 70], [150, 120, 110]).astype(np.float64)
+    frame = np.clip(frame + rng.normal(0, 10, frame.shape), 0, 255).astype(np.uint8)
+    soft = cv2.GaussianBlur(truth.astype(np.float32), (0, 0), 4)
+    prob = np.clip(0.1 + 0.7 * soft + rng.normal(0, 0.12, truth.shape), 0, 1).astype(np.float32)
+    prob[soft < 0.02] = np.minimum(prob[soft < 0.02], 0.45)  # far from the patch nothing passes 0.5
+    return frame, prob, truth
+
+
+def test_the_crf_on_the_box_around_the_object_agrees_with_the_whole_frame():
+    frame, prob, truth = _small_object_scene()
+    params = dict(gaussian_sxy=3.0, bilateral_sxy=6.0)  # a bilateral width small against the frame
+    whole = densecrf_mask(frame, prob, **params)
+    boxed = densecrf_mask(frame, prob, crop_margin=3.0, **params)
+    assert boxed.shape == truth.shape and boxed.dtype == np.uint8
+    assert _iou(whole, truth) > 0.85
+    assert np.mean(boxed != whole) < 0.002  # at most a few boundary pixels differ
+    assert boxed[:, :100].sum() == 0  # outside the box (columns < 120 - 18): background
+    # a margin of 0 is the box of the pixels above 0.5 itself: still the object
+    assert _iou(densecrf_mask(frame, prob, crop_margin=0.0, **params), truth) > 0.8
+
+
+def test_the_boxed_crf_of_a_map_with_nothing_above_one_half_is_background_as_the_crf_says():
+    frame, prob, _ = _small_object_scene()
+    low = np.clip(prob, 0.0, 0.45)  # not normalised (min-max normalising would stretch it back to 1)
+    assert densecrf_mask(frame, low, normalise=False).sum() == 0
+    assert densecrf_mask(frame, low, normalise=False, crop_margin=3.0).sum() == 0

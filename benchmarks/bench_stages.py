@@ -1,0 +1,151 @@
+"""Per-stage micro-benchmarks of the throughput issue's targets, in milliseconds and in reference units.
+
+    python benchmarks/bench_stages.py [--stages motion_net,refiner] [--frames 16] [--threads 1]
+
+R is measured in the same invocation, before and after the stages (both printed: a drift between them means the
+machine was not quiet): OpenCV DIS ``medium`` forward + backward per frame on the same DAVIS 480p frames at the
+processing size (427x240). Every figure is per frame, at one worker's settings (``--threads`` torch/OpenCV threads,
+default 1), after a warm-up batch:
+
+- ``motion_net``: the ``epo`` preset's two U-Nets on 427x240 motion images, batches of 8, as the stage ran them
+  before (each :class:`~eponet.nets.EpoUNet` in eval mode, channels-last) and as it runs them now (each as its
+  :class:`~eponet.nets.InferenceUNet`), in float32 and under ``precision: bfloat16``. The motion images are
+  random: a convolution's cost does not depend on the values.
+- ``refiner``: the ``epo`` preset's dense CRF (854x480 frames and probabilities, run at 427 px wide) on real
+  frames, split into its parts (resizing and unary, the Gaussian and bilateral kernels' set-up, the five
+  mean-field iterations), and ``densecrf_mask`` as the stage calls it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_run import DAVIS, reference_ms  # noqa: E402
+
+SIZE = (427, 240)  # processing size (w, h) of 854x480 input at scale 0.5
+
+
+def _frames(count: int) -> tuple[list[Path], list[np.ndarray]]:
+    files = sorted((DAVIS / "JPEGImages" / "480p").glob("*/*.jpg"))[:count]
+    if len(files) < 2:
+        raise SystemExit(f"no DAVIS 480p frames under {DAVIS} (set EPONET_SHARED_DATA)")
+    frames = [cv2.resize(cv2.imread(str(f))[..., ::-1], (854, 480), interpolation=cv2.INTER_AREA) for f in files]
+    return files, frames
+
+
+def _timed(function, frames: int, repeats: int = 3) -> float:
+    """Best of ``repeats`` calls of ``function()`` (after a warm-up call), in ms per frame."""
+    function()
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        best = min(best, (time.perf_counter() - start) * 1000 / frames)
+    return best
+
+
+def bench_motion_net(frames: int) -> dict[str, float]:
+    import torch
+
+    from eponet.plugins.motion_net.epo_unet import EpoUNetStage, load_unet
+
+    weights = ["epo-davis", "epo-davis-seed1"]
+    motion = np.random.default_rng(0).standard_normal((frames, 3, SIZE[1], SIZE[0])).astype(np.float32)
+    before = [load_unet(w)[0].to(memory_format=torch.channels_last) for w in weights]
+
+    def old():
+        with torch.inference_mode():
+            for start in range(0, frames, 8):
+                batch = torch.from_numpy(motion[start : start + 8])
+                for model in before:
+                    torch.sigmoid(model(model.select_inputs(batch).contiguous(memory_format=torch.channels_last)))
+
+    figures = {"before (EpoUNet, eval)": _timed(old, frames)}
+    for precision in ("float32", "bfloat16"):
+        stage = EpoUNetStage(weights=weights, device="cpu", precision=precision)
+        figures[f"now ({precision})"] = _timed(lambda: stage.predict(motion), frames)
+    return figures
+
+
+def bench_refiner(frames: list[np.ndarray]) -> dict[str, float]:
+    import pydensecrf.densecrf as dcrf
+    from pydensecrf.utils import unary_from_softmax
+
+    from eponet.core.registry import get_registry
+    from eponet.plugins.refiner.densecrf import densecrf_mask
+
+    preset = dict(get_registry().resolve_preset("epo")["refiner"])
+    preset.pop("plugin")
+    defaults = {p.name: p.default for p in get_registry().get("refiner", "densecrf").params}
+    params = {**defaults, **preset}
+    yy, xx = np.mgrid[0:480, 0:854]
+    probability = np.exp(-(((xx - 500) / 150.0) ** 2 + ((yy - 260) / 110.0) ** 2)).astype(np.float32)
+    scale = params["max_size"] / 854
+    parts = dict.fromkeys(("resize + unary", "Gaussian kernel set-up", "bilateral kernel set-up",
+                           f"{params['iterations']} mean-field iterations", "upsample + argmax"), 0.0)
+    for frame in frames:
+        tick = time.perf_counter()
+        small_frame = cv2.resize(frame, SIZE, interpolation=cv2.INTER_AREA)
+        small = cv2.resize(probability, SIZE, interpolation=cv2.INTER_LINEAR)
+        crf = dcrf.DenseCRF2D(SIZE[0], SIZE[1], 2)
+        crf.setUnaryEnergy(np.ascontiguousarray(unary_from_softmax(np.stack([1.0 - small, small]))))
+        marks = [time.perf_counter()]
+        crf.addPairwiseGaussian(sxy=params["gaussian_sxy"] * scale, compat=params["gaussian_compat"],
+                                kernel=dcrf.DIAG_KERNEL, normalization=dcrf.NORMALIZE_SYMMETRIC)
+        marks.append(time.perf_counter())
+        crf.addPairwiseBilateral(sxy=params["bilateral_sxy"] * scale, srgb=params["bilateral_srgb"],
+                                 rgbim=np.ascontiguousarray(small_frame), compat=params["bilateral_compat"],
+                                 kernel=dcrf.DIAG_KERNEL, normalization=dcrf.NORMALIZE_SYMMETRIC)
+        marks.append(time.perf_counter())
+        q = np.asarray(crf.inference(params["iterations"])).reshape(2, SIZE[1], SIZE[0])
+        marks.append(time.perf_counter())
+        cv2.resize(q[1] - q[0], (854, 480), interpolation=cv2.INTER_LINEAR) > 0
+        marks.append(time.perf_counter())
+        for name, a, b in zip(parts, [tick, *marks[:-1]], marks):
+            parts[name] += (b - a) * 1000 / len(frames)
+    figures = {f"  {name}": value for name, value in parts.items()}
+    figures["densecrf_mask (the stage, preset epo)"] = _timed(
+        lambda: [densecrf_mask(f, probability, **params) for f in frames], len(frames), repeats=1)
+    return figures
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--stages", default="motion_net,refiner")
+    parser.add_argument("--frames", type=int, default=16)
+    parser.add_argument("--threads", type=int, default=1, help="torch and OpenCV threads (one worker's share)")
+    args = parser.parse_args()
+    import torch
+
+    torch.set_num_threads(args.threads)
+    cv2.setNumThreads(args.threads)
+    files, frames = _frames(args.frames)
+    before = reference_ms(files, 0.5, args.threads)
+    results = {}
+    for stage in args.stages.split(","):
+        if stage == "motion_net":
+            results[stage] = bench_motion_net(args.frames)
+        elif stage == "refiner":
+            results[stage] = bench_refiner(frames[: min(8, len(frames))])
+        else:
+            raise SystemExit(f"--stages: unknown stage {stage!r}; known: motion_net, refiner")
+    after = reference_ms(files, 0.5, args.threads)
+    reference = 0.5 * (before + after)
+    print(f"R = {reference:.1f} ms (DIS medium fwd+bwd per frame at {SIZE[0]}x{SIZE[1]}, {args.threads} thread(s); "
+          f"{before:.1f} before the stages, {after:.1f} after)")
+    for stage, figures in results.items():
+        print(stage)
+        for name, ms in figures.items():
+            print(f"  {name:<44} {ms:8.1f} ms {ms / reference:6.2f} R")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,129 @@
+"""Cheaper dense CRFs against the ``epo`` preset's, held out: J and cost of each setting on the k-fold saliency.
+
+Reads the held-out saliency maps of a k-fold run (``benchmarks/kfold.py --what epo --save masks,saliency``: every
+one of the 30 DAVIS-2016 train sequences scored by a network trained without it, 8-bit maps at 480p) and refines
+them with each setting of the grid: the preset's CRF (427 px wide, 5 iterations, the whole frame), a lower CRF size
+(``max_size``), fewer ``iterations``, and the CRF only on the box around the object (``crop_margin`` bilateral
+widths around the pixels above 0.5). Every ``--every``-th scored frame of every sequence is used (J per sequence is
+the mean over those frames, DAVIS-2016 J against the 480p ground truth). Cost: the CRF's milliseconds per frame in
+the same process, in units of R (OpenCV DIS ``medium`` forward+backward per frame at 427x240 on the same frames,
+measured before and after).
+
+Selection without choosing on the reported sequences: for each fold, the cheapest setting whose mean J over the
+other 24 sequences is at most ``--tolerance`` (0.002) below the preset's there; that fold's six sequences are then
+reported with the setting chosen for them.
+
+    python benchmarks/crf_speed_sweep.py --dump runs/kfold-epo-dump [--every 4] [--jobs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_run import reference_ms  # noqa: E402
+
+#: (label, changes to the preset's refiner); the first is the preset itself.
+GRID = [("preset (427 px, 5 it.)", {}),
+        ("crop 3", {"crop_margin": 3.0}),
+        ("crop 2", {"crop_margin": 2.0}),
+        ("320 px", {"max_size": 320}),
+        ("320 px, crop 3", {"max_size": 320, "crop_margin": 3.0}),
+        ("214 px", {"max_size": 214}),
+        ("214 px, crop 3", {"max_size": 214, "crop_margin": 3.0}),
+        ("crop 3, 3 it.", {"crop_margin": 3.0, "iterations": 3})]
+
+
+def _preset() -> dict:
+    from eponet.core.registry import get_registry
+
+    registry = get_registry()
+    defaults = {p.name: p.default for p in registry.get("refiner", "densecrf").params}
+    refiner = dict(registry.resolve_preset("epo")["refiner"])
+    refiner.pop("plugin")
+    return {**defaults, **refiner}
+
+
+def _score_sequence(job: tuple) -> dict:
+    """J mean and CRF seconds per frame of one sequence for each setting of the grid."""
+    import cv2
+
+    cv2.setNumThreads(1)
+    from eponet.core.io import read_image
+    from eponet.evaluation.datasets import load_dataset
+    from eponet.evaluation.metrics import db_eval_iou
+    from eponet.plugins.refiner.densecrf import densecrf_mask
+
+    root, heldout, name, every = job
+    preset = _preset()
+    sequence = load_dataset("davis2016", root, sequences=[name])[name]
+    frames = list(sequence.scored)[::every]
+    scores, seconds = [[] for _ in GRID], [0.0 for _ in GRID]
+    for frame in frames:
+        image = read_image(root / "JPEGImages" / "480p" / name / f"{frame}.png")
+        probability = cv2.imread(str(heldout / name / "saliency" / f"{frame}.png"), cv2.IMREAD_GRAYSCALE) / 255.0
+        gt, void = sequence.read_gt(frame)
+        for i, (_, changes) in enumerate(GRID):
+            tick = time.perf_counter()
+            mask = densecrf_mask(image, probability, **{**preset, **changes})
+            seconds[i] += time.perf_counter() - tick
+            scores[i].append(db_eval_iou(mask.astype(bool), gt, void))
+    return {"name": name, "frames": len(frames), "J": [float(np.mean(s)) for s in scores],
+            "ms": [1000 * s / len(frames) for s in seconds]}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dump", type=Path, required=True, help="output folder of kfold.py --save ...,saliency")
+    parser.add_argument("--every", type=int, default=4)
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--tolerance", type=float, default=0.002)
+    args = parser.parse_args()
+    record = json.loads((args.dump / "kfold.json").read_text())
+    root = args.dump / "davis-480p-from-240p"
+    folds = record["folds"]
+    jobs = [(root, args.dump / f"fold{i}" / "heldout", name, args.every) for i, names in enumerate(folds)
+            for name in names]
+    files = sorted((root / "JPEGImages" / "480p" / folds[0][0]).glob("*.png"))[:20]
+    cv2.setNumThreads(1)
+    before = reference_ms(files, 0.5, 1)
+    with ProcessPoolExecutor(args.jobs) as pool:
+        rows = {r["name"]: r for r in pool.map(_score_sequence, jobs)}
+    after = reference_ms(files, 0.5, 1)
+    reference = 0.5 * (before + after)
+    fold_of = {name: i for i, names in enumerate(folds) for name in names}
+    labels = [label for label, _ in GRID]
+    mean_j = lambda names, k: float(np.mean([rows[n]["J"][k] for n in names]))  # noqa: E731
+    weights = np.array([rows[n]["frames"] for n in rows], float)
+    cost = [float(np.average([rows[n]["ms"][k] for n in rows], weights=weights)) for k in range(len(GRID))]
+    print(f"R = {reference:.1f} ms ({before:.1f} before, {after:.1f} after); every {args.every}th scored frame, "
+          f"{int(weights.sum())} frames of {len(rows)} sequences")
+    print(f"{'setting':<26}{'J':>7}{'ms':>8}{'R':>7}")
+    for k, label in enumerate(labels):
+        print(f"{label:<26}{mean_j(list(rows), k):>7.3f}{cost[k]:>8.1f}{cost[k] / reference:>7.2f}")
+    chosen, heldout_j = {}, {}
+    for i, names in enumerate(folds):
+        others = [n for n in rows if fold_of[n] != i]
+        floor = mean_j(others, 0) - args.tolerance
+        k = min((k for k in range(len(GRID)) if mean_j(others, k) >= floor), key=lambda k: cost[k])
+        chosen[i] = labels[k]
+        heldout_j.update({n: rows[n]["J"][k] for n in names})
+    print("chosen per fold (on the other folds): " + ", ".join(f"{i}: {c}" for i, c in chosen.items()))
+    nested = float(np.mean(list(heldout_j.values())))
+    print(f"nested: J {nested:.3f} against the preset's {mean_j(list(rows), 0):.3f} on the same frames")
+    out = args.dump / "crf-speed-sweep.json"
+    out.write_text(json.dumps({"reference_ms": reference, "every": args.every, "grid": GRID, "cost_ms": cost,
+                               "sequences": rows, "chosen": chosen, "nested_J": nested}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
