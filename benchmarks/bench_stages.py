@@ -11,6 +11,8 @@ default 1), after a warm-up batch:
   before (each :class:`~eponet.nets.EpoUNet` in eval mode, channels-last) and as it runs them now (each as its
   :class:`~eponet.nets.InferenceUNet`), in float32 and under ``precision: bfloat16``. The motion images are
   random: a convolution's cost does not depend on the values.
+- ``flow``: the presets' flow (``dis``, ``medium`` with ``finest_scale: 0``) forward + backward per frame, and
+  OpenCV's own ``medium`` (``finest_scale: null``, which is R's computation) through the same stage.
 - ``refiner``: the ``epo`` preset's dense CRF (854x480 frames and probabilities, run at 427 px wide) on real
   frames, split into its parts (resizing and unary, the Gaussian and bilateral kernels' set-up, the five
   mean-field iterations), and ``densecrf_mask`` as the stage calls it.
@@ -74,6 +76,19 @@ def bench_motion_net(frames: int) -> dict[str, float]:
     return figures
 
 
+def bench_flow(frames: list[np.ndarray]) -> dict[str, float]:
+    from eponet.core.types import Video
+    from eponet.plugins.flow.dis import DisFlow
+
+    small = np.stack([cv2.resize(f, SIZE, interpolation=cv2.INTER_AREA) for f in frames])
+    video = Video("bench", small, [f"{t:05d}" for t in range(len(small))], small.shape[1:3])
+    figures = {}
+    for label, finest in (("dis medium, finest_scale 0 (presets)", 0), ("dis medium, finest_scale null", None)):
+        stage = DisFlow(preset="medium", finest_scale=finest)
+        figures[label] = _timed(lambda: stage.estimate(video), len(frames) - 1)
+    return figures
+
+
 def bench_refiner(frames: list[np.ndarray]) -> dict[str, float]:
     import pydensecrf.densecrf as dcrf
     from pydensecrf.utils import unary_from_softmax
@@ -118,7 +133,7 @@ def bench_refiner(frames: list[np.ndarray]) -> dict[str, float]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--stages", default="motion_net,refiner")
+    parser.add_argument("--stages", default="flow,motion_net,refiner")
     parser.add_argument("--frames", type=int, default=16)
     parser.add_argument("--threads", type=int, default=1, help="torch and OpenCV threads (one worker's share)")
     args = parser.parse_args()
@@ -132,10 +147,12 @@ def main() -> int:
     for stage in args.stages.split(","):
         if stage == "motion_net":
             results[stage] = bench_motion_net(args.frames)
+        elif stage == "flow":
+            results[stage] = bench_flow(frames)
         elif stage == "refiner":
             results[stage] = bench_refiner(frames[: min(8, len(frames))])
         else:
-            raise SystemExit(f"--stages: unknown stage {stage!r}; known: motion_net, refiner")
+            raise SystemExit(f"--stages: unknown stage {stage!r}; known: flow, motion_net, refiner")
     after = reference_ms(files, 0.5, args.threads)
     reference = 0.5 * (before + after)
     print(f"R = {reference:.1f} ms (DIS medium fwd+bwd per frame at {SIZE[0]}x{SIZE[1]}, {args.threads} thread(s); "

@@ -34,10 +34,8 @@ from bench_run import reference_ms  # noqa: E402
 #: (label, changes to the preset's refiner); the first is the preset itself.
 GRID = [("preset (427 px, 5 it.)", {}),
         ("crop 3", {"crop_margin": 3.0}),
-        ("crop 2", {"crop_margin": 2.0}),
         ("320 px", {"max_size": 320}),
         ("320 px, crop 3", {"max_size": 320, "crop_margin": 3.0}),
-        ("214 px", {"max_size": 214}),
         ("214 px, crop 3", {"max_size": 214, "crop_margin": 3.0}),
         ("crop 3, 3 it.", {"crop_margin": 3.0, "iterations": 3})]
 

@@ -25,7 +25,7 @@ from typing import Iterator
 import numpy as np
 
 from .imaging import fill_from_neighbourhood
-from .types import FlowPair, TrackFrame, assemble_trajectories
+from .types import FlowPair, IdIndex, TrackFrame, assemble_trajectories, union_of_ids
 
 __all__ = ["GeometryScorer", "CHECKPOINT_SECONDS", "CHECKPOINT_VERSION"]
 
@@ -51,11 +51,12 @@ class _Accumulator:
     counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def add(self, ids: np.ndarray, sums: np.ndarray, counts: np.ndarray) -> None:
-        union = np.union1d(self.ids, ids)
+        union = union_of_ids([self.ids, ids])
+        index = IdIndex(union)
         new_sums, new_counts = np.zeros(len(union)), np.zeros(len(union), np.int64)
-        old = np.searchsorted(union, self.ids)
+        old = index.positions(self.ids)
         new_sums[old], new_counts[old] = self.sums, self.counts
-        at = np.searchsorted(union, ids)
+        at = index.positions(ids)
         new_sums[at] += sums
         new_counts[at] += counts
         self.ids, self.sums, self.counts = union, new_sums, new_counts
@@ -66,10 +67,11 @@ class _Accumulator:
 
     def means(self, labels: np.ndarray) -> np.ndarray:
         """Mean distance of the trajectory covering each pixel (NaN where none was scored)."""
-        at = np.clip(np.searchsorted(self.ids, labels), 0, max(len(self.ids) - 1, 0))
         if not len(self.ids):
             return np.full(labels.shape, np.nan, np.float32)
-        found = self.ids[at] == labels
+        at = IdIndex(self.ids).positions(labels)
+        found = at >= 0
+        at = np.maximum(at, 0)
         counts = np.where(found, self.counts[at], 0)
         with np.errstate(invalid="ignore", divide="ignore"):
             means = np.where(counts > 0, (self.sums[at] / np.maximum(counts, 1)).astype(np.float32), np.nan)
@@ -268,7 +270,7 @@ class GeometryScorer:
         for t in [t for t in records if t < oldest]:
             del records[t]
         if records:
-            alive = np.unique(np.concatenate([records[t].ids for t in records]))
+            alive = union_of_ids([records[t].ids for t in records])
             self.acc.keep(alive)
             if self.history is not None:
                 self.history.keep(alive)
