@@ -48,6 +48,6 @@ def eponet_stages():
                 Param("finest_scale", "int", None, "finest pyramid level, 0 = full frame size (default: the preset's)",
                       minimum=0, maximum=6, nullable=True),
             ),
-            doc="OpenCV DIS optical flow (default; ~26 ms per 854x480 pair at preset medium)",
+            doc="OpenCV DIS optical flow (default; preset medium forward+backward is R, the benchmarks' speed unit)",
         )
     ]
