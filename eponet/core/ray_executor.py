@@ -108,13 +108,14 @@ def _auto_address() -> str | None:
 class SequenceWorker:
     """A Ray actor's state: the spec's pipeline, built once, with torch/OpenCV limited to the CPUs Ray gave it."""
 
-    def __init__(self, spec: Spec, cache_root: str, cache_enabled: bool):
+    def __init__(self, spec: Spec, cache_root: str, cache_enabled: bool, cpus: int):
         import ray
 
         from .progress import set_quiet
         from .workers import limit_threads
 
-        cpus = ray.get_runtime_context().get_assigned_resources().get("CPU", 1)
+        # the CPUs this actor was created with (``num_cpus``), given explicitly: what the runtime context reports
+        # for an actor that Ray restarted after its process died was seen to be 1 CPU instead of 2
         self.threads = max(1, int(cpus))
         limit_threads(self.threads)
         set_quiet(True)
@@ -176,7 +177,7 @@ def run_on_ray(pipeline, sources: list[SequenceSource], finished: Callable[[str,
     try:
         count, cpus = _actor_plan(ray, spec.run.workers, len(sources))
         actor_class = ray.remote(SequenceWorker).options(num_cpus=cpus, max_restarts=-1, max_task_retries=RETRIES)
-        actors = [actor_class.remote(spec, str(pipeline.cache.root), pipeline.cache.enabled) for _ in range(count)]
+        actors = [actor_class.remote(spec, str(pipeline.cache.root), pipeline.cache.enabled, cpus) for _ in range(count)]
         log.info("Ray: %d actors of %d CPU(s) for %d sequences", count, cpus, len(sources))
         pool = ActorPool(actors)
         for source in sources:
