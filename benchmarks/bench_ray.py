@@ -4,7 +4,9 @@ that bound the executor on N machines, measured here.
     python benchmarks/bench_ray.py [--preset epo] [--sequences 6] [--frames 40] [--storage-mbps 1000]
 
 Both runs are ``python -m eponet.run`` as a user runs it (start-up, Ray's start and model loading included) on the
-first ``--sequences`` DAVIS 480p sequences under ``--root`` (``../shared/data/davis2016-train/DAVIS``), at most
+first ``--sequences`` DAVIS-2016 train sequences under ``--root`` (``../shared/data/davis2016-train/DAVIS``) as
+854x480 frames (upsampled once from the 240p ones into ``runs/davis-480p-from-240p``: the shared data has 480p
+frames of three sequences only), at most
 ``--frames`` frames each, scale 0.5, cache off, masks written: ``executor: local, workers: 1`` and ``executor:
 ray, address: null`` (a local Ray instance with this machine's CPUs, one actor per CPU). Then, in this process:
 the time to start a local Ray instance, to start one actor and build its pipeline (the model load per actor), the
@@ -25,7 +27,10 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
 DAVIS = Path(os.environ.get("EPONET_SHARED_DATA", ROOT.parent / "shared" / "data")) / "davis2016-train" / "DAVIS"
 
 
@@ -71,7 +76,7 @@ def ray_overheads(spec_document: dict, pool_calls: int = 200) -> dict:
                 return value
 
         start = time.perf_counter()
-        worker = ray.remote(SequenceWorker).options(num_cpus=1).remote(spec, tempfile.gettempdir(), False)
+        worker = ray.remote(SequenceWorker).options(num_cpus=1).remote(spec, tempfile.gettempdir(), False, 1)
         ray.get(worker.describe.remote())
         actor = time.perf_counter() - start
         ray.kill(worker)
@@ -100,13 +105,18 @@ def main() -> int:
                         help="shared storage bandwidth (MB/s) for the estimate on N machines")
     args = parser.parse_args()
 
-    frames_root = args.root / "JPEGImages" / "480p"
-    names = sorted(p.name for p in frames_root.iterdir() if p.is_dir())[: args.sequences]
+    from bench_run import reference_ms
+    from epo_ablation import validation_root
+
+    names = sorted(p.name for p in (args.root / "JPEGImages" / "240p").iterdir() if p.is_dir())[: args.sequences]
     if len(names) < args.sequences:
-        raise SystemExit(f"{frames_root}: {len(names)} sequences, fewer than --sequences {args.sequences}")
+        raise SystemExit(f"{args.root}: {len(names)} sequences, fewer than --sequences {args.sequences}")
+    root = validation_root(args.root, names, ROOT / "runs")
+    frames_root = root / "JPEGImages" / "480p"
+    r1 = np.mean([reference_ms(sorted((frames_root / n).iterdir())[: args.frames], args.scale, 1) for n in names])
 
     def spec(out: Path, **run) -> dict:
-        return {"preset": args.preset, "input": {"path": str(args.root), "sequences": names, "scale": args.scale,
+        return {"preset": args.preset, "input": {"path": str(root), "sequences": names, "scale": args.scale,
                                                  "max_frames": args.frames},
                 "output": {"dir": str(out), "save": ["masks"]}, "cache": {"enabled": False}, "run": run}
 
@@ -122,9 +132,12 @@ def main() -> int:
     per_frame = (read + written) / on_ray["frames"]
     print(f"{len(names)} sequences x {args.frames} frames ({', '.join(names)}), preset {args.preset}, "
           f"{os.cpu_count()} cores")
-    print(f"  executor local, workers 1: {local['fps']:.2f} frames/s (wall {local['wall_s']:.1f} s)")
+    print(f"  reference R: DIS medium forward+backward at the processing size, one thread: {r1:.1f} ms/frame")
+    print(f"  executor local, workers 1: {local['fps']:.2f} frames/s = {1000 / local['fps'] / r1:.1f} R per frame "
+          f"(wall {local['wall_s']:.1f} s)")
     print(f"  executor ray, {plan['actors']} actors x {plan['cpus_per_actor']} CPU: {on_ray['fps']:.2f} frames/s "
-          f"(wall {on_ray['wall_s']:.1f} s); ratio {on_ray['fps'] / local['fps']:.2f}x")
+          f"= {1000 / on_ray['fps'] / r1:.1f} R per frame (wall {on_ray['wall_s']:.1f} s); ratio "
+          f"{on_ray['fps'] / local['fps']:.2f}x")
     print(f"  measured: Ray start {overheads['ray_start_s']:.1f} s, one actor with its pipeline "
           f"{overheads['actor_start_s']:.1f} s, ActorPool round trip {overheads['pool_call_ms']:.2f} ms per sequence, "
           f"a sequence {sum(seconds) / len(seconds):.1f} s in its actor, storage {per_frame / 1e6:.3f} MB per frame "

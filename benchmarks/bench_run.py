@@ -3,8 +3,10 @@ against the machine's reference: OpenCV DIS ``medium`` forward+backward on the s
 
     python benchmarks/bench_run.py [--preset epo] [--frames 40] [--workers auto,1] [--lengths 300,1000]
 
-Multi-sequence run: every DAVIS 480p sequence under ``--root`` (``../shared/data/davis2016-train/DAVIS``), at most
-``--frames`` frames each (``input.max_frames``), scale 0.5, cache off, masks written. For each ``--workers``
+Multi-sequence run: the first ``--sequences`` DAVIS-2016 train sequences (sorted names) under ``--root``
+(``../shared/data/davis2016-train/DAVIS``) as 854x480 frames (the shared data has 480p frames of three
+sequences only, so the 240p frames are upsampled once into ``runs/davis-480p-from-240p``, as every held-out
+figure does), at most ``--frames`` frames each (``input.max_frames``), scale 0.5, cache off, masks written. For each ``--workers``
 setting: frames/s, CPU % of one core (user + system time of the run's processes over its wall time), peak RSS of
 the largest process and the share of each stage (from ``run.json``). Each figure is also given in reference
 units: ``R`` = milliseconds per frame of DIS medium forward+backward, measured in the same invocation on the
@@ -31,6 +33,7 @@ import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
 DAVIS = Path(os.environ.get("EPONET_SHARED_DATA", ROOT.parent / "shared" / "data")) / "davis2016-train" / "DAVIS"
 
 
@@ -56,15 +59,16 @@ def reference_ms(files: list[Path], scale: float, threads: int | None) -> float:
         cv2.setNumThreads(previous)
 
 
-def run_cli(spec: dict, folder: Path, quiet: bool = True) -> dict:
-    """Run ``python -m eponet.run`` on ``spec`` in a child process; wall time, CPU time and peak RSS."""
+def run_cli(spec: dict, folder: Path, quiet: bool = True, prefix: tuple = ()) -> dict:
+    """Run ``python -m eponet.run`` on ``spec`` in a child process (after ``prefix``, e.g. ``taskset -c 0``);
+    wall time, CPU time and peak RSS."""
     import yaml
 
     path = folder / "spec.yaml"
     path.write_text(yaml.safe_dump(spec))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "eponet.run", str(path), "--no-cache", "-q"], cwd=folder,
+    done = subprocess.run([*prefix, sys.executable, "-m", "eponet.run", str(path), "--no-cache", "-q"], cwd=folder,
                           capture_output=True, text=True)
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -95,9 +99,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="epo")
     parser.add_argument("--root", type=Path, default=DAVIS)
+    parser.add_argument("--sequences", type=int, default=6, help="DAVIS sequences of the multi-sequence run")
     parser.add_argument("--frames", type=int, default=40, help="frames per sequence of the multi-sequence run")
     parser.add_argument("--workers", default="auto,1", help="comma-separated run.workers settings to measure")
     parser.add_argument("--lengths", default="", help="comma-separated lengths of single long videos (e.g. 300,1000)")
+    parser.add_argument("--one-core", action="store_true",
+                        help="also run each long video on one core (taskset -c 0): what the other cores add to one video")
     parser.add_argument("--scale", type=float, default=0.5)
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         help="extra spec values KEY.PATH=VALUE (YAML), e.g. run.chunk=32")
@@ -105,8 +112,11 @@ def main() -> int:
 
     import yaml
 
-    frames_root = args.root / "JPEGImages" / "480p"
-    sequences = sorted(p.name for p in frames_root.iterdir() if p.is_dir())
+    from epo_ablation import validation_root
+
+    sequences = sorted(p.name for p in (args.root / "JPEGImages" / "240p").iterdir() if p.is_dir())[: args.sequences]
+    root = validation_root(args.root, sequences, ROOT / "runs")
+    frames_root = root / "JPEGImages" / "480p"
     files = {name: sorted((frames_root / name).iterdir())[: args.frames] for name in sequences}
     all_files = [f for name in sequences for f in files[name]]
     r1 = np.mean([reference_ms(files[name], args.scale, 1) for name in sequences])
@@ -134,7 +144,7 @@ def main() -> int:
         print(f"\n{len(sequences)} sequences x {args.frames} frames ({', '.join(sequences)}), preset {args.preset}:")
         for workers in args.workers.split(","):
             workers = workers if workers == "auto" else int(workers)
-            result = run_cli(spec_for(args.root, tmp / f"out-{workers}", workers, args.frames), tmp)
+            result = run_cli(spec_for(root, tmp / f"out-{workers}", workers, args.frames), tmp)
             results[workers] = result
             ms = 1000 / result["fps"]
             total = sum(v for k, v in result["stages_s"].items()) or 1.0
@@ -152,6 +162,10 @@ def main() -> int:
             ms = 1000 / result["fps"]
             print(f"  one video of {length} frames ({sequences[0]} forwards and backwards): {result['fps']:.2f} frames/s "
                   f"= {ms / r1:.1f} R1; CPU {result['cpu_percent']:.0f}%; peak RSS {result['peak_rss_mb']:.0f} MB")
+            if args.one_core:
+                alone = run_cli(spec_for(folder, tmp / f"long-one-core-{length}", 1), tmp, prefix=("taskset", "-c", "0"))
+                print(f"    on one core (taskset -c 0): {alone['fps']:.2f} frames/s = {1000 / alone['fps'] / r1:.1f} R1; "
+                      f"all {os.cpu_count()} cores / one: {result['fps'] / alone['fps']:.2f}x")
     return 0
 
 
