@@ -22,6 +22,9 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus
         # EpO+: each fold's fusion (examples/train-epo-plus.yaml) trained on the fold's frozen network
     python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--flow-cache DIR]
+    python benchmarks/kfold.py --what epo --out runs/kfold-epo-parallax --preset epo-st \
+        --recipe-rigidity degeneracy=parallax border_prior=0.15
+        # folds trained on another ED than the recipe's (merged onto its geometry.stages.rigidity)
 
 Trained folds (``weights.pt`` present) are reused; ``<out>/kfold.json`` holds every figure, and a later call
 with other ``--folds`` and the same settings adds its folds to it.
@@ -121,16 +124,22 @@ def fusion_recipe_without(sequences: list[str], motion_net: Path) -> dict:
 
 def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: list[int], rigidity: dict,
             weights: Path | None = None, save: tuple[str, ...] = ("masks",), preset: str = "epo",
-            fusion: dict | None = None, plus: bool = False) -> dict[str, dict]:
+            fusion: dict | None = None, plus: bool = False, recipe_rigidity: dict | None = None) -> dict[str, dict]:
     """Train one network per fold (``jobs`` at once, one thread each; into ``weights`` or ``out``) and score
-    its held-out sequences, with the ``rigidity`` settings merged onto the preset's when given. ``plus``: then
+    its held-out sequences, with the ``rigidity`` settings merged onto the preset's when given
+    (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns). ``plus``: then
     train each fold's EpO+ fusion on that fold's frozen network (into ``out/fold<i>/fusion``) and score the
     ``epo+`` preset with both."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
+    def recipe(i):
+        doc = recipe_without(split[i])
+        doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})
+        return doc
+
     def train(i):
-        seconds = train_variant(weights / f"fold{i}", lambda: recipe_without(split[i]), threads, retrain=False)
+        seconds = train_variant(weights / f"fold{i}", lambda: recipe(i), threads, retrain=False)
         if plus:
             net = weights / f"fold{i}" / "weights.pt"
             seconds += train_variant(out / f"fold{i}" / "fusion", lambda: fusion_recipe_without(split[i], net),
@@ -174,6 +183,8 @@ def main(argv=None) -> int:
                         help="epo: plugin=NAME and key=value settings of the fusion stage (e.g. plugin=selftrain weight=0.5)")
     parser.add_argument("--rigidity", nargs="*", default=[],
                         help="key=value settings of the trifocal stage (epo: merged onto the preset's when scoring)")
+    parser.add_argument("--recipe-rigidity", nargs="*", default=[],
+                        help="key=value merged onto the training recipe's rigidity stage (the ED the folds learn)")
     parser.add_argument("--weights", type=Path, default=None,
                         help="epo: folder of already trained fold<i>/weights.pt to score (default: --out)")
     parser.add_argument("--flow-cache", type=Path, default=None)
@@ -199,10 +210,13 @@ def main(argv=None) -> int:
         fusion = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.fusion)}
         plus = args.what == "epo+"
         preset = "epo+" if plus else args.preset
+        recipe_rigidity = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.recipe_rigidity)}
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
-                               tuple(args.save.split(",")), preset, fusion, plus)
+                               tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
+        if recipe_rigidity:
+            meta["recipe_rigidity"] = recipe_rigidity
         if plus:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)
