@@ -101,7 +101,8 @@ def main() -> int:
     parser.add_argument("--root", type=Path, default=DAVIS)
     parser.add_argument("--sequences", type=int, default=6, help="DAVIS sequences of the multi-sequence run")
     parser.add_argument("--frames", type=int, default=40, help="frames per sequence of the multi-sequence run")
-    parser.add_argument("--workers", default="auto,1", help="comma-separated run.workers settings to measure")
+    parser.add_argument("--workers", default="auto,1", help="comma-separated run.workers settings to measure "
+                        "('': none, only the --lengths runs)")
     parser.add_argument("--lengths", default="", help="comma-separated lengths of single long videos (e.g. 300,1000)")
     parser.add_argument("--one-core", action="store_true",
                         help="also run each long video on one core (taskset -c 0): what the other cores add to one video")
@@ -142,7 +143,7 @@ def main() -> int:
         tmp = Path(tmp)
         results = {}
         print(f"\n{len(sequences)} sequences x {args.frames} frames ({', '.join(sequences)}), preset {args.preset}:")
-        for workers in args.workers.split(","):
+        for workers in filter(None, args.workers.split(",")):  # --workers '': only the long videos
             workers = workers if workers == "auto" else int(workers)
             result = run_cli(spec_for(root, tmp / f"out-{workers}", workers, args.frames), tmp)
             results[workers] = result
