@@ -2,6 +2,7 @@ import pytest
 import torch
 
 from eponet.nets import EpoUNet, InferenceUNet
+from eponet.nets.unet import HEAD_BLOCK
 
 
 @pytest.mark.parametrize("inputs, channels", [("ed+flow", 3), ("flow", 2), ("ed", 1)])
@@ -69,17 +70,18 @@ def _trained_like(model: EpoUNet) -> EpoUNet:
     return model.eval()
 
 
-@pytest.mark.parametrize("depth, size", [(2, (37, 53)), (4, (60, 107))])
-def test_the_inference_network_computes_what_the_network_computes_in_eval_mode(depth, size):
+@pytest.mark.parametrize("depth, size, channels_last", [(2, (37, 53), True), (4, (60, 107), True), (3, (41, 70), False)])
+def test_the_inference_network_computes_what_the_network_computes_in_eval_mode(depth, size, channels_last):
     torch.manual_seed(1)
     model = _trained_like(EpoUNet(depth=depth, widths=(4, 8, 8, 16), head_channels=8, ed_encoding="log"))
     fast = InferenceUNet(model)
     x = torch.randn(3, 3, *size) * 2
     with torch.inference_mode():
         expected = model(model.select_inputs(x))
-        inputs = fast.select_inputs(x).contiguous(memory_format=torch.channels_last)
+        inputs = fast.select_inputs(x).contiguous(memory_format=torch.channels_last if channels_last else
+                                                  torch.contiguous_format)
         got = fast(inputs)
-    assert got.shape == expected.shape == (3, 1, *size)
+    assert got.shape == expected.shape == (3, 1, *size) and 3 * size[0] * size[1] > HEAD_BLOCK  # several head blocks
     assert float((got - expected).abs().max()) < 1e-4 * float(expected.abs().max())
     assert float(expected.std()) > 0.1  # not a trivially constant output
     assert fast.config == model.config and not any(p.requires_grad for p in fast.parameters())
