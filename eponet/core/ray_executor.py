@@ -15,6 +15,7 @@ import logging
 import os
 import re
 import socket
+import time
 from typing import Callable
 
 from .cache import Cache
@@ -174,6 +175,7 @@ def run_on_ray(pipeline, sources: list[SequenceSource], finished: Callable[[str,
     from ray.util import ActorPool
 
     actors = []
+    free_before = ray.available_resources().get("CPU", 0)
     try:
         count, cpus = _actor_plan(ray, spec.run.workers, len(sources))
         actor_class = ray.remote(SequenceWorker).options(num_cpus=cpus, max_restarts=-1, max_task_retries=RETRIES)
@@ -208,8 +210,18 @@ def run_on_ray(pipeline, sources: list[SequenceSource], finished: Callable[[str,
     finally:
         for actor in actors:
             ray.kill(actor)
+        if actors and not joined:
+            _await_release(ray, free_before)
         if joined:
             ray.shutdown()
+
+
+def _await_release(ray, free: float, timeout_s: float = 10.0) -> None:
+    """Wait (at most ``timeout_s``) until the killed actors' CPUs are free again: ``ray.kill`` returns before Ray
+    releases them, and a run that follows at once in the same Ray would plan its actors on fewer CPUs."""
+    deadline = time.monotonic() + timeout_s
+    while ray.available_resources().get("CPU", 0) < free and time.monotonic() < deadline:
+        time.sleep(0.05)
 
 
 def _first_line(exc: BaseException) -> str:

@@ -184,6 +184,11 @@ def _running_actor() -> int | None:
 @needs_ray
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds the actor's process in /proc")
 def test_an_actor_killed_mid_sequence_gets_its_sequence_retried(ray_instance, tmp_path):
+    # the actors of an earlier test's killed driver are released by Ray asynchronously: this test wants one actor
+    # with both CPUs
+    deadline = time.time() + 60
+    while ray_instance.available_resources().get("CPU", 0) < 2 and time.time() < deadline:
+        time.sleep(0.1)
     write_frames(tmp_path / "long", moving_square_frames(16, 3))
     out = tmp_path / "out"
     killed = {}
