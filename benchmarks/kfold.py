@@ -90,6 +90,11 @@ def report(per_sequence: dict[str, dict], measures: tuple[str, ...], attrs: dict
     return "\n".join(lines)
 
 
+def key_values(items: list[str]) -> dict:
+    """``["k=v", ...]`` from the command line as a dict, each value read as YAML (``0.15`` a number)."""
+    return {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in items)}
+
+
 def _finite(value):
     return float(value) if value is not None and np.isfinite(value) else None
 
@@ -201,16 +206,16 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     for i in which:
         print(f"fold {i}: {', '.join(split[i])}")
-    rigidity = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.rigidity)}
+    rigidity = key_values(args.rigidity)
     if args.what == "ed":
         per_sequence = run_ed([split[i] if i in which else [] for i in range(len(split))], rigidity, args.flow_cache)
         measures = ("AUC",)
         meta = {"rigidity": rigidity}
     else:
-        fusion = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.fusion)}
+        fusion = key_values(args.fusion)
         plus = args.what == "epo+"
         preset = "epo+" if plus else args.preset
-        recipe_rigidity = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.recipe_rigidity)}
+        recipe_rigidity = key_values(args.recipe_rigidity)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity)
         measures = ("J", "F", "T")

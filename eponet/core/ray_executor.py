@@ -24,7 +24,7 @@ from .inputs import SequenceSource
 from .outputs import remove_partials
 from .spec import Spec
 
-__all__ = ["run_on_ray", "connect", "SequenceWorker", "ray_missing", "address_problem", "RETRIES", "CONNECT_TIMEOUT_S"]
+__all__ = ["run_on_ray", "connect", "await_release", "SequenceWorker", "ray_missing", "address_problem", "RETRIES", "CONNECT_TIMEOUT_S"]
 
 log = logging.getLogger(__name__)
 
@@ -115,8 +115,7 @@ class SequenceWorker:
         from .progress import set_quiet
         from .workers import limit_threads
 
-        # the CPUs this actor was created with (``num_cpus``), given explicitly: what the runtime context reports
-        # for an actor that Ray restarted after its process died was seen to be 1 CPU instead of 2
+        # ``cpus``: the ``num_cpus`` the executor planned this actor with (also what a restarted actor gets again)
         self.threads = max(1, int(cpus))
         limit_threads(self.threads)
         set_quiet(True)
@@ -211,12 +210,12 @@ def run_on_ray(pipeline, sources: list[SequenceSource], finished: Callable[[str,
         for actor in actors:
             ray.kill(actor)
         if actors and not joined:
-            _await_release(ray, free_before)
+            await_release(ray, free_before)
         if joined:
             ray.shutdown()
 
 
-def _await_release(ray, free: float, timeout_s: float = 10.0) -> None:
+def await_release(ray, free: float, timeout_s: float = 10.0) -> None:
     """Wait (at most ``timeout_s``) until the killed actors' CPUs are free again: ``ray.kill`` returns before Ray
     releases them, and a run that follows at once in the same Ray would plan its actors on fewer CPUs."""
     deadline = time.monotonic() + timeout_s

@@ -21,6 +21,7 @@ import yaml
 
 from eponet.core.errors import SequenceFailures, SpecError
 from eponet.core.pipeline import Pipeline
+from eponet.core.ray_executor import await_release
 from eponet.core.spec import parse_spec
 from tests.conftest import REPO, textured_frames, write_frames
 
@@ -186,9 +187,7 @@ def _running_actor() -> int | None:
 def test_an_actor_killed_mid_sequence_gets_its_sequence_retried(ray_instance, tmp_path):
     # the actors of an earlier test's killed driver are released by Ray asynchronously: this test wants one actor
     # with both CPUs
-    deadline = time.time() + 60
-    while ray_instance.available_resources().get("CPU", 0) < 2 and time.time() < deadline:
-        time.sleep(0.1)
+    await_release(ray_instance, 2, timeout_s=60)
     write_frames(tmp_path / "long", moving_square_frames(16, 3))
     out = tmp_path / "out"
     killed = {}
