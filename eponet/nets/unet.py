@@ -163,7 +163,7 @@ class InferenceUNet(nn.Module):
     def _head(self, x: torch.Tensor) -> torch.Tensor:
         """The 1x1 head and classifier over blocks of :data:`HEAD_BLOCK` pixels: the hidden layer of a whole
         batch at full resolution (B x H x W x ``head_channels`` floats, 210 MB for 16 frames of 427x240) went
-        through memory twice, while a block's stays in the cache (5x faster at one thread)."""
+        through memory twice, while a block's stays in the cache."""
         batch, channels, height, width = x.shape
         pixels = x.permute(0, 2, 3, 1).reshape(-1, channels)  # (B H W, C): a view of a channels-last tensor
         blocks = []
