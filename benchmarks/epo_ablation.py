@@ -141,10 +141,10 @@ def validation_root(davis: Path, sequences: list[str], out: Path) -> Path:
 
 
 def run_validation(stages: dict, out: Path, davis: Path, sequences: list[str], *, preset: str = "epo",
-                   save: tuple = ("masks",), evaluate: dict | None = None) -> dict:
-    """Run ``preset`` with ``stages`` on the validation root's 480p frames at scale 0.5 (the setting of every
-    held-out figure), saving ``save`` under ``out``; returns the run's manifest (with ``evaluation`` when
-    ``evaluate`` is given)."""
+                   save: tuple = ("masks",), evaluate: dict | None = None, run: dict | None = None) -> dict:
+    """Run ``preset`` with ``stages`` (and the spec's ``run`` settings, when given) on the validation root's 480p
+    frames at scale 0.5 (the setting of every held-out figure), saving ``save`` under ``out``; returns the run's
+    manifest (with ``evaluation`` when ``evaluate`` is given)."""
     from eponet.core.pipeline import Pipeline
     from eponet.core.progress import set_quiet
     from eponet.core.spec import parse_spec
@@ -155,6 +155,8 @@ def run_validation(stages: dict, out: Path, davis: Path, sequences: list[str], *
                 "stages": stages, "output": {"dir": str(out), "save": list(save)}, "seed": 0}
     if evaluate is not None:
         document["evaluate"] = evaluate
+    if run:
+        document["run"] = run
     return Pipeline(parse_spec(document, base_dir=ROOT)).run()
 
 

@@ -21,6 +21,9 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
         # the same networks through another preset (here with per-video self-training; --fusion key=value)
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus
         # EpO+: each fold's fusion (examples/train-epo-plus.yaml) trained on the fold's frozen network
+    python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-ed-video --run ed_window=null \
+        --sequences bmx-bumps,car-turn,dance-jump,hockey,paragliding,stroller
+        # some sequences only, with other run settings (here the whole video's ED scale)
     python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--flow-cache DIR]
     python benchmarks/kfold.py --what epo --out runs/kfold-epo-parallax --preset epo-st \
         --recipe-rigidity degeneracy=parallax border_prior=0.15
@@ -129,12 +132,13 @@ def fusion_recipe_without(sequences: list[str], motion_net: Path) -> dict:
 
 def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: list[int], rigidity: dict,
             weights: Path | None = None, save: tuple[str, ...] = ("masks",), preset: str = "epo",
-            fusion: dict | None = None, plus: bool = False, recipe_rigidity: dict | None = None) -> dict[str, dict]:
+            fusion: dict | None = None, plus: bool = False, recipe_rigidity: dict | None = None,
+            run: dict | None = None, only: set[str] | None = None) -> dict[str, dict]:
     """Train one network per fold (``jobs`` at once, one thread each; into ``weights`` or ``out``) and score
     its held-out sequences, with the ``rigidity`` settings merged onto the preset's when given
     (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns). ``plus``: then
     train each fold's EpO+ fusion on that fold's frozen network (into ``out/fold<i>/fusion``) and score the
-    ``epo+`` preset with both."""
+    ``epo+`` preset with both. ``run``: the spec's ``run`` settings; ``only``: score these sequences only."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
@@ -153,7 +157,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
 
     with ThreadPoolExecutor(jobs) as pool:
         seconds = dict(zip(which, pool.map(train, which)))
-    davis = validation_root(DAVIS, [n for i in which for n in split[i]], out)
+    scored = {i: [n for n in split[i] if not only or n in only] for i in which}
+    davis = validation_root(DAVIS, [n for i in which for n in scored[i]], out)
     crf = authors_crf() if refiner == "authors" else None
     per_sequence = {}
     for i in which:
@@ -167,8 +172,10 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
                                 **(fusion or {})}
         elif fusion:
             stages["fusion"] = fusion
-        manifest = run_validation(stages, out / f"fold{i}" / "heldout", davis, split[i], save=save, preset=preset,
-                                  evaluate={"dataset": "davis2016", "t": True})
+        if not scored[i]:
+            continue
+        manifest = run_validation(stages, out / f"fold{i}" / "heldout", davis, scored[i], save=save, preset=preset,
+                                  evaluate={"dataset": "davis2016", "t": True}, run=run)
         for name, v in manifest["evaluation"]["sequences"].items():
             per_sequence[name] = {"fold": i, "train_s": round(seconds[i], 1),
                                   **{m: _finite(v.get(m, {}).get("mean")) for m in "JFT"}}
@@ -192,6 +199,10 @@ def main(argv=None) -> int:
                         help="key=value merged onto the training recipe's rigidity stage (the ED the folds learn)")
     parser.add_argument("--weights", type=Path, default=None,
                         help="epo: folder of already trained fold<i>/weights.pt to score (default: --out)")
+    parser.add_argument("--run", nargs="*", default=[],
+                        help="epo: key=value settings of the spec's run section (e.g. ed_window=null)")
+    parser.add_argument("--sequences", default=None,
+                        help="epo: comma-separated sequences to score (default: every sequence of the folds)")
     parser.add_argument("--flow-cache", type=Path, default=None)
     parser.add_argument("--save", default="masks",
                         help="epo: comma-separated outputs of the held-out runs (output.save), e.g. masks,saliency,ed")
@@ -202,6 +213,12 @@ def main(argv=None) -> int:
         return 1
     split = folds((DAVIS / "ImageSets" / "train.txt").read_text().split())
     which = [int(i) for i in args.folds.split(",")] if args.folds else list(range(len(split)))
+    only = set(args.sequences.split(",")) if args.sequences else None
+    if only:
+        unknown = only - {n for names in split for n in names}
+        if unknown:
+            raise SystemExit(f"--sequences: not DAVIS-2016 train sequences: {', '.join(sorted(unknown))}")
+        which = [i for i in which if only & set(split[i])]
     out = args.out or ROOT / "runs" / f"kfold-{args.what}"
     out.mkdir(parents=True, exist_ok=True)
     for i in which:
@@ -216,12 +233,15 @@ def main(argv=None) -> int:
         plus = args.what == "epo+"
         preset = "epo+" if plus else args.preset
         recipe_rigidity = key_values(args.recipe_rigidity)
+        run = key_values(args.run)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
-                               tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity)
+                               tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
             meta["recipe_rigidity"] = recipe_rigidity
+        if run:
+            meta["run"] = run
         if plus:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)

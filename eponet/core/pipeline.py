@@ -364,8 +364,10 @@ def memory_warning(spec: Spec, source: SequenceSource) -> str | None:
         return None
     size = tuple(source.size)
     shape = processing_size(size, spec.input.scale)
+    if spec.run.ed_window is None and not source.count:
+        return None  # the whole video in flight, of a length not known before it is decoded
     estimate = memory_estimate(size, shape, chunk=spec.run.chunk, lag=spec.run.lag, frames=source.count,
-                               full_frames=_needs_full_frames(spec))
+                               full_frames=_needs_full_frames(spec), ed_window=spec.run.ed_window)
     if estimate <= MEMORY_WARNING_BYTES:
         return None
     return (f"{source.name}: frames of {size[1]}x{size[0]} px (processed at {shape[1]}x{shape[0]}) need about "

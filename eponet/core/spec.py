@@ -15,6 +15,7 @@ import yaml
 from .errors import PluginNotFound, SpecError
 from .hookspecs import StageSpec
 from .io import is_pattern
+from .motion import ED_WINDOW
 from .params import Param, validate_params
 from .graph import KINDS, OUTPUTS, missing_needs, producer_of, producers
 from .registry import Registry, get_registry, nearest
@@ -55,6 +56,10 @@ _RUN = {
                    "work on this many frames at a time", minimum=2),
     "lag": Param("lag", "int", 30, "frames a trajectory's ED may still change after a frame it covers is painted: "
                  "frame t waits for every frame group starting by t + lag", minimum=0),
+    "ed_window": Param("ed_window", "int", ED_WINDOW, "frames of the centred window whose ED sets a frame's ED scale (its "
+                       "95th percentile): a stream waits for ed_window // 2 frames of look-ahead; null: the whole "
+                       "video's scale (the original's; holds every frame until the video ends)", minimum=1,
+                       nullable=True),
     "workers": Param("workers", "str", "auto", "sequences processed at once in worker processes: 'auto' (one per "
                      "core, at most one per sequence) or a number"),
     "threads": Param("threads", "bool", True, "overlap the stages of one video in threads (flow of the next chunk "
@@ -114,6 +119,7 @@ class OutputConfig:
 class RunConfig:
     chunk: int = 16
     lag: int = 30
+    ed_window: int | None = ED_WINDOW
     workers: int | str = "auto"
     threads: bool = True
     executor: str = "local"
@@ -389,7 +395,8 @@ def parse_spec(
         ),
         stages=stages,
         output=OutputConfig(dir=out_dir, save=tuple(save), fps=output_values.get("fps")),
-        run=RunConfig(chunk=run_values["chunk"], lag=run_values["lag"], workers=workers, threads=run_values["threads"],
+        run=RunConfig(chunk=run_values["chunk"], lag=run_values["lag"], ed_window=run_values["ed_window"],
+                      workers=workers, threads=run_values["threads"],
                       executor=run_values["executor"], address=run_values["address"]),
         seed=seed,
         cache_enabled=cache_values["enabled"],

@@ -12,7 +12,8 @@ Each stage of :data:`eponet.core.graph.GRAPH` is driven by its temporal context:
   scored; a trajectory covering t that ended by then has its final mean, a longer one the mean over its groups
   so far (it has run at least ``lag`` frames past t).
 - ED scale: the motion net's ED scale of frame t is the 95th percentile over frames ``t - 30 .. t + 30``
-  (:data:`eponet.core.motion.ED_WINDOW`), so it waits for 30 painted frames of look-ahead.
+  (``run.ed_window``, default :data:`eponet.core.motion.ED_WINDOW`), so it waits for 30 painted frames of look-ahead
+  (``ed_window: null``: the whole video's scale, so every frame waits for the last).
 - ``frame`` (motion net, appearance, refiner): batches of ``run.chunk`` frames.
 - ``window`` (fusion): the stage's own ``window`` / ``overlap`` windows, each run as soon as its frames exist;
   every frame is taken from the window where it lies farthest from an inner window edge (centre stitching).
@@ -36,6 +37,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import queue
+import sys
 import threading
 import time
 import zlib
@@ -70,16 +72,20 @@ BYTES_PER_INPUT_PIXEL = 8
 
 
 def memory_estimate(size: tuple[int, int], shape: tuple[int, int], *, chunk: int, lag: int, frames: int = 0,
-                    full_frames: bool = True) -> int:
+                    full_frames: bool = True, ed_window: int | None = ED_WINDOW) -> int:
     """About how many bytes the run loop holds at its peak for one sequence of input ``size`` ``(H, W)`` processed
-    at ``shape`` ``(h, w)``: ``chunk + lag + ED_WINDOW // 2`` frames in flight (``frames``, when given, if the
-    video is shorter), each costing :data:`BYTES_PER_PROCESSING_PIXEL` per processing pixel and, with
+    at ``shape`` ``(h, w)``: ``chunk + lag + ed_window // 2`` frames in flight (``frames``, when given, if the
+    video is shorter; every frame with ``ed_window=None``, the whole video's ED scale), each costing :data:`BYTES_PER_PROCESSING_PIXEL` per processing pixel and, with
     ``full_frames``, :data:`BYTES_PER_INPUT_PIXEL` per input pixel. Libraries and networks (about 0.4 GB) come on top.
 
     >>> round(memory_estimate((3000, 4000), (1500, 2000), chunk=16, lag=30) / 2**30, 1)
     28.0
     """
-    in_flight = chunk + lag + ED_WINDOW // 2
+    if ed_window is None:
+        if not frames:
+            raise ValueError("memory_estimate: ed_window=None holds the whole video: give its number of frames")
+        return memory_estimate(size, shape, chunk=frames, lag=0, frames=frames, full_frames=full_frames, ed_window=1)
+    in_flight = chunk + lag + ed_window // 2
     if frames:
         in_flight = min(in_flight, frames)
     per_frame = shape[0] * shape[1] * BYTES_PER_PROCESSING_PIXEL
@@ -176,6 +182,7 @@ class SequenceStream:
         self.shape = shape  # processing (h, w)
         self.chunk = self.spec.run.chunk
         self.lag = self.spec.run.lag
+        self.ed_window = self.spec.run.ed_window
         self.digest = digest
         self.timings: dict[str, float] = {}
         self.cached: list[str] = []
@@ -407,7 +414,9 @@ class SequenceStream:
 
     # -- the ED scale and the motion images -----------------------------------------------------
     def _ed_scale(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
-        half = ED_WINDOW // 2
+        """Each frame's ED scale over ``run.ed_window`` frames centred on it (``None``: the whole video, so every
+        frame waits for the last)."""
+        half = self.ed_window // 2 if self.ed_window is not None else sys.maxsize
         samples: dict[int, np.ndarray] = {}
         waiting: deque[FrameItem] = deque()
         for item in stream:
@@ -420,7 +429,7 @@ class SequenceStream:
 
     @staticmethod
     def _scaled(item: FrameItem, samples: dict, half: int) -> FrameItem:
-        window = [samples[t] for t in range(item.t - half, item.t + half + 1) if t in samples]
+        window = [sample for t, sample in samples.items() if abs(t - item.t) <= half]
         item.ed_scale = ed_window_scale(window)
         for t in [t for t in samples if t < item.t - half + 1]:
             del samples[t]

@@ -58,6 +58,30 @@ def test_one_window_equals_the_whole_video(tmp_path, sampling):
     np.testing.assert_array_equal(result.motion_images, images)
 
 
+@pytest.mark.parametrize("ed_window", [3, None])
+def test_the_ed_scale_window_is_the_specs(tmp_path, ed_window):
+    """``run.ed_window``: each frame's ED scale over that many frames around it (``null``: the whole video), as
+    :func:`normalise_ed` computes it on the whole video's ED maps."""
+    frames = textured_frames(14, (48, 64), shift=(1.0, 0.5), seed=0)
+    patch = np.random.default_rng(5).integers(0, 256, (16, 16, 3), dtype=np.uint8)
+    for t, frame in enumerate(frames):  # a large patch, still for 7 frames, then moving 4 px a frame
+        x = 6 + 4 * max(0, t - 7)
+        frame[16:32, x : x + 16] = patch
+    folder = tmp_path / "clip"
+    write_frames(folder, frames)
+    spec = _spec(folder, tmp_path / "out", run={"chunk": 4, "lag": 4, "ed_window": ed_window})
+    video = load_video(discover_sequences(folder)[0], scale=1.0)
+    result = Pipeline(spec).process(video)
+    expected = motion_images(result.flow, normalise_ed(result.ed, window=ed_window, saturate=False))
+    np.testing.assert_allclose(result.motion_images, expected, rtol=1e-6)
+    default = Pipeline(_spec(folder, tmp_path / "out2", run={"chunk": 4, "lag": 4})).process(video)
+    difference = np.abs(default.motion_images - result.motion_images).max()
+    if ed_window is None:  # the default window (61 frames) spans these 14: the whole video's scale
+        assert difference == 0
+    else:  # 3 frames see the patch still or moving, not both
+        assert difference > 1e-3
+
+
 def test_chunks_carry_trajectories_and_means_across_windows(tmp_path):
     """Chunks of 4 frames: flow pairs, trajectories and (with uniform sampling, the same draws in the same order)
     every group's model are those of the whole video; each trajectory's mean over windows equals its mean
