@@ -2,6 +2,17 @@
 
 from __future__ import annotations
 
+import atexit
+import inspect
+import logging
+import os
+import pickle
+import subprocess
+import sys
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
 import numpy as np
 
 from eponet.core.hookspecs import StageSpec, hookimpl
@@ -9,6 +20,8 @@ from eponet.core.params import Param
 from eponet.core.progress import track
 
 __all__ = ["DenseCrfRefiner", "densecrf_mask"]
+
+log = logging.getLogger(__name__)
 
 
 def densecrf_mask(
@@ -45,6 +58,32 @@ def densecrf_mask(
     kernel's weight at 3 widths is exp(-4.5) = 0.011, so a margin of 3 changes few pixels, and the cost falls
     with the box's area. ``None``: the whole frame, as the original code.
     """
+    job = _crf_job(frame, probability, iterations=iterations, gaussian_sxy=gaussian_sxy,
+                   gaussian_compat=gaussian_compat, bilateral_sxy=bilateral_sxy, bilateral_srgb=bilateral_srgb,
+                   bilateral_compat=bilateral_compat, normalise=normalise, scale=scale, max_size=max_size,
+                   crop_margin=crop_margin)
+    return _crf_mask(job, _crf_margin(*job.args) if job.args else None)
+
+
+#: densecrf_mask's keyword arguments and their defaults
+_DEFAULTS = {name: parameter.default for name, parameter in inspect.signature(densecrf_mask).parameters.items()
+             if parameter.kind is inspect.Parameter.KEYWORD_ONLY}
+
+
+@dataclass
+class _CrfJob:
+    """One frame's CRF as :func:`densecrf_mask` prepares it: ``args`` of :func:`_crf_margin` (None: nothing
+    above 0.5 in a crop, all background), the box it covers in the (resized) frame, the resized frame's size and the
+    input's."""
+
+    args: tuple | None
+    box: tuple
+    shape: tuple[int, int]
+    full_size: tuple[int, int]
+
+
+def _crf_job(frame, probability, *, iterations, gaussian_sxy, gaussian_compat, bilateral_sxy, bilateral_srgb,
+             bilateral_compat, normalise, scale, max_size, crop_margin) -> _CrfJob:
     p = probability.astype(np.float32)
     if normalise:
         lo, hi = float(p.min()), float(p.max())
@@ -65,16 +104,24 @@ def densecrf_mask(
     if crop_margin is not None:
         rows, cols = np.flatnonzero((p > 0.5).any(axis=1)), np.flatnonzero((p > 0.5).any(axis=0))
         if not len(rows):
-            return np.zeros(full_size, np.uint8)
+            return _CrfJob(None, box, p.shape, full_size)
         grow = int(np.ceil(crop_margin * bilateral_sxy))
         box = (slice(max(0, rows[0] - grow), rows[-1] + 1 + grow), slice(max(0, cols[0] - grow), cols[-1] + 1 + grow))
-    margin = np.full(p.shape, -1.0, np.float32)
-    margin[box] = _crf_margin(frame[box], p[box], iterations, gaussian_sxy, gaussian_compat, bilateral_sxy,
-                              bilateral_srgb, bilateral_compat)
-    if margin.shape != full_size:
+    args = (np.ascontiguousarray(frame[box]), np.ascontiguousarray(p[box]), iterations, gaussian_sxy, gaussian_compat,
+            bilateral_sxy, bilateral_srgb, bilateral_compat)
+    return _CrfJob(args, box, p.shape, full_size)
+
+
+def _crf_mask(job: _CrfJob, margin_in_box: np.ndarray | None) -> np.ndarray:
+    """The mask uint8 at the input size from the CRF's margin on the job's box (None: all background)."""
+    if margin_in_box is None:
+        return np.zeros(job.full_size, np.uint8)
+    margin = np.full(job.shape, -1.0, np.float32)
+    margin[job.box] = margin_in_box
+    if margin.shape != job.full_size:
         import cv2
 
-        margin = cv2.resize(margin, (full_size[1], full_size[0]), interpolation=cv2.INTER_LINEAR)
+        margin = cv2.resize(margin, (job.full_size[1], job.full_size[0]), interpolation=cv2.INTER_LINEAR)
     return (margin > 0).astype(np.uint8)
 
 
@@ -95,17 +142,89 @@ def _crf_margin(frame: np.ndarray, p: np.ndarray, iterations: int, gaussian_sxy:
     return q[1] - q[0]
 
 
-class DenseCrfRefiner:
-    """Dense CRF per frame on the min-max normalised probability (defaults from the original code)."""
+class _Helper:
+    """One child process running :func:`_crf_margin` (``python -m eponet.plugins.refiner._crf_helper``): the
+    arguments go to it pickled through a pipe, the answer comes back the same way, one frame at a time. A child
+    started as a module, not by ``multiprocessing``, so a user's script is never imported again."""
 
-    def __init__(self, **params):
+    def __init__(self):
+        package_root = str(Path(__file__).resolve().parents[3])
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [package_root, os.environ.get("PYTHONPATH")])),
+               "OMP_NUM_THREADS": "1"}
+        self.process = subprocess.Popen([sys.executable, "-m", "eponet.plugins.refiner._crf_helper"],
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+        self.lock = threading.Lock()
+
+    def margin(self, args: tuple) -> np.ndarray:
+        with self.lock:  # one request in flight: no pipe can fill both ways
+            pickle.dump(args, self.process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            self.process.stdin.flush()
+            status, value = pickle.load(self.process.stdout)
+        if status != "ok":
+            raise RuntimeError(value)
+        return value
+
+    def close(self) -> None:
+        try:
+            self.process.stdin.close()
+            self.process.wait(timeout=5)
+        except (OSError, subprocess.TimeoutExpired):
+            self.process.kill()
+
+
+_HELPER: _Helper | None = None
+_HELPER_LOCK = threading.Lock()
+
+
+def _helper() -> _Helper:
+    """This process's one helper process for pydensecrf (started on first use, closed at exit)."""
+    global _HELPER
+    with _HELPER_LOCK:
+        if _HELPER is None or _HELPER.process.poll() is not None:
+            _HELPER = _Helper()
+            atexit.register(_HELPER.close)
+        return _HELPER
+
+
+def _forget_helper() -> None:
+    global _HELPER
+    with _HELPER_LOCK:
+        if _HELPER is not None:
+            _HELPER.close()
+        _HELPER = None
+
+
+class DenseCrfRefiner:
+    """Dense CRF per frame on the min-max normalised probability (defaults from the original code).
+
+    pydensecrf holds Python's GIL through its C++ work, so in the run loop, whose stages of one video overlap in
+    threads, a CRF in this process would stall the flow and geometry threads for its whole duration. With
+    ``helper_process`` (the default) the CRF itself runs in one helper process (started on first use, shared by
+    every refiner of this process); the resizing and cropping stay here, and the masks are the same bit for bit.
+    """
+
+    def __init__(self, *, helper_process: bool = True, **params):
+        self.helper_process = helper_process
         self.params = params
 
     def refine(self, frames: np.ndarray, probability: np.ndarray) -> np.ndarray:
+        jobs = [_crf_job(frames[t], probability[t], **{**_DEFAULTS, **self.params}) for t in range(len(frames))]
         masks = np.empty(probability.shape, np.uint8)
-        for t in track(range(len(frames)), desc="refiner (densecrf)", total=len(frames)):
-            masks[t] = densecrf_mask(frames[t], probability[t], **self.params)
+        for t, margin in enumerate(self._margins(jobs)):
+            masks[t] = _crf_mask(jobs[t], margin)
         return masks
+
+    def _margins(self, jobs: list[_CrfJob]) -> list[np.ndarray | None]:
+        desc = "refiner (densecrf)"
+        if self.helper_process:
+            try:
+                helper = _helper()
+                return [helper.margin(job.args) if job.args else None for job in track(jobs, desc=desc, total=len(jobs))]
+            except (OSError, EOFError, pickle.UnpicklingError) as exc:  # no helper here: the CRF runs in this process
+                _forget_helper()
+                log.warning("densecrf: no helper process (%s); the CRF runs in this process", exc)
+                self.helper_process = False
+        return [_crf_margin(*job.args) if job.args else None for job in track(jobs, desc=desc, total=len(jobs))]
 
 
 @hookimpl
@@ -127,6 +246,8 @@ def eponet_stages():
                       minimum=0.1, maximum=1.0),
                 Param("max_size", "int", None, "run at most at this longer side in px (null = no cap)",
                       minimum=16, nullable=True),
+                Param("helper_process", "bool", True, "run pydensecrf in a helper process: it holds Python's GIL, "
+                      "which would stall the other stages of the run loop's threads (false: in this process)"),
                 Param("crop_margin", "float", None, "run only on the box around the pixels above 0.5, grown by this "
                       "many bilateral widths (background outside; null = the whole frame)", minimum=0.0, nullable=True),
             ),

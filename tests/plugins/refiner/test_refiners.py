@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from eponet.plugins.refiner.densecrf import DenseCrfRefiner, densecrf_mask
 from eponet.plugins.refiner.threshold import ThresholdRefiner
@@ -99,3 +100,44 @@ def test_the_boxed_crf_of_a_map_with_nothing_above_one_half_is_background_as_the
     low = np.clip(prob, 0.0, 0.45)  # not normalised (min-max normalising would stretch it back to 1)
     assert densecrf_mask(frame, low, normalise=False).sum() == 0
     assert densecrf_mask(frame, low, normalise=False, crop_margin=3.0).sum() == 0
+
+
+def test_the_helper_process_gives_the_same_masks_and_runs_elsewhere():
+    """pydensecrf holds the GIL, so the refiner runs it in a helper process: same masks bit for bit."""
+    import os
+
+    from eponet.plugins.refiner import densecrf
+
+    frames, probs = zip(*[_scene(seed)[:2] for seed in range(3)])
+    frames, probs = np.stack(frames), np.stack(probs)
+    probs[2] = 0.2  # nothing above 0.5: cropped away, no CRF
+    params = {"max_size": 100, "crop_margin": 1.0}
+    inline = DenseCrfRefiner(helper_process=False, **params).refine(frames, probs)
+    helped = DenseCrfRefiner(**params).refine(frames, probs)
+    np.testing.assert_array_equal(helped, inline)
+    assert inline[:2].sum() > 0 and inline[2].sum() == 0
+    helper = densecrf._helper()
+    assert helper.process.poll() is None and helper.process.pid != os.getpid()
+
+
+def test_an_error_in_the_helper_process_is_raised_here():
+    from eponet.plugins.refiner import densecrf
+
+    with pytest.raises(RuntimeError, match="Error"):
+        densecrf._helper().margin((np.zeros((4, 4, 3), np.uint8), np.zeros((5, 5), np.float32), 5, 3.0, 3.0, 50.0,
+                                   10.0, 5.0))
+    frame, prob, truth = _scene()
+    assert _iou(DenseCrfRefiner().refine(frame[None], prob[None])[0], truth) > 0.9  # and it goes on
+
+
+def test_without_a_helper_process_the_crf_runs_here_with_a_warning(monkeypatch, caplog):
+    from eponet.plugins.refiner import densecrf
+
+    def no_helper():
+        raise OSError("no processes here")
+
+    monkeypatch.setattr(densecrf, "_helper", no_helper)
+    frame, prob, truth = _scene()
+    refiner = DenseCrfRefiner()
+    assert _iou(refiner.refine(frame[None], prob[None])[0], truth) > 0.9
+    assert "densecrf: no helper process (no processes here)" in caplog.text and refiner.helper_process is False
