@@ -245,7 +245,7 @@ def main(argv=None) -> int:
         if plus:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)
-            meta.update(preset=args.preset, fusion=fusion)
+            meta.update(preset=preset, fusion=fusion)
     previous = out / "kfold.json"
     if previous.is_file():  # folds scored by an earlier call with the same settings are kept
         earlier = json.loads(previous.read_text())
