@@ -98,7 +98,8 @@ def bench_refiner(frames: list[np.ndarray]) -> dict[str, float]:
 
     preset = dict(get_registry().resolve_preset("epo")["refiner"])
     preset.pop("plugin")
-    defaults = {p.name: p.default for p in get_registry().get("refiner", "densecrf").params}
+    defaults = {p.name: p.default for p in get_registry().get("refiner", "densecrf").params
+                if p.name != "helper_process"}  # (densecrf_mask: the CRF of one frame, in this process)
     params = {**defaults, **preset}
     yy, xx = np.mgrid[0:480, 0:854]
     probability = np.exp(-(((xx - 500) / 150.0) ** 2 + ((yy - 260) / 110.0) ** 2)).astype(np.float32)

@@ -10,10 +10,14 @@ the same process, in units of R (OpenCV DIS ``medium`` forward+backward per fram
 measured before and after).
 
 Selection without choosing on the reported sequences: for each fold, the cheapest setting whose mean J over the
-other 24 sequences is at most ``--tolerance`` (0.002) below the preset's there; that fold's six sequences are then
-reported with the setting chosen for them.
+other 24 sequences is at most ``--tolerance`` (0.002) below the preset's there (``--choose best``: the setting
+with the best mean J there); that fold's six sequences are then reported with the setting chosen for them.
+
+``--preset epo+`` starts from that preset's CRF instead (on an ``--what epo+`` k-fold's saliency, the fused
+maps), and ``--grid weights`` tries the bilateral kernel's colour width and weight instead of the cheaper sizes.
 
     python benchmarks/crf_speed_sweep.py --dump runs/kfold-epo-dump [--every 4] [--jobs 2]
+    python benchmarks/crf_speed_sweep.py --dump runs/kfold-epo-plus --preset epo+ --grid weights --choose best
 """
 
 from __future__ import annotations
@@ -38,14 +42,21 @@ GRID = [("preset (427 px, 5 it.)", {}),
         ("320 px, crop 3", {"max_size": 320, "crop_margin": 3.0}),
         ("214 px, crop 3", {"max_size": 214, "crop_margin": 3.0}),
         ("crop 3, 3 it.", {"crop_margin": 3.0, "iterations": 3})]
+#: ``--grid weights``: the bilateral kernel's colour width (srgb) and weight (compat), the first the preset's.
+WEIGHTS_GRID = [("preset", {}),
+                ("srgb 5, compat 8", {"bilateral_srgb": 5.0, "bilateral_compat": 8.0}),
+                ("srgb 5, compat 5", {"bilateral_srgb": 5.0, "bilateral_compat": 5.0}),
+                ("srgb 10, compat 8", {"bilateral_srgb": 10.0, "bilateral_compat": 8.0}),
+                ("srgb 15, compat 5", {"bilateral_srgb": 15.0, "bilateral_compat": 5.0}),
+                ("srgb 10, compat 3", {"bilateral_srgb": 10.0, "bilateral_compat": 3.0})]
 
 
-def _preset() -> dict:
+def _preset(name: str = "epo") -> dict:
     from eponet.core.registry import get_registry
 
     registry = get_registry()
-    defaults = {p.name: p.default for p in registry.get("refiner", "densecrf").params}
-    refiner = dict(registry.resolve_preset("epo")["refiner"])
+    defaults = {p.name: p.default for p in registry.get("refiner", "densecrf").params if p.name != "helper_process"}
+    refiner = dict(registry.resolve_preset(name)["refiner"])
     refiner.pop("plugin")
     return {**defaults, **refiner}
 
@@ -60,16 +71,16 @@ def _score_sequence(job: tuple) -> dict:
     from eponet.evaluation.metrics import db_eval_iou
     from eponet.plugins.refiner.densecrf import densecrf_mask
 
-    root, heldout, name, every = job
-    preset = _preset()
+    root, heldout, name, every, preset_name, grid = job
+    preset = _preset(preset_name)
     sequence = load_dataset("davis2016", root, sequences=[name])[name]
     frames = list(sequence.scored)[::every]
-    scores, seconds = [[] for _ in GRID], [0.0 for _ in GRID]
+    scores, seconds = [[] for _ in grid], [0.0 for _ in grid]
     for frame in frames:
         image = read_image(root / "JPEGImages" / "480p" / name / f"{frame}.png")
         probability = cv2.imread(str(heldout / name / "saliency" / f"{frame}.png"), cv2.IMREAD_GRAYSCALE) / 255.0
         gt, void = sequence.read_gt(frame)
-        for i, (_, changes) in enumerate(GRID):
+        for i, (_, changes) in enumerate(grid):
             tick = time.perf_counter()
             mask = densecrf_mask(image, probability, **{**preset, **changes})
             seconds[i] += time.perf_counter() - tick
@@ -84,11 +95,17 @@ def main() -> int:
     parser.add_argument("--every", type=int, default=4)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--tolerance", type=float, default=0.002)
+    parser.add_argument("--preset", default="epo", help="the preset whose CRF is the first setting (epo, epo+)")
+    parser.add_argument("--grid", choices=("speed", "weights"), default="speed")
+    parser.add_argument("--choose", choices=("cheapest", "best"), default="cheapest",
+                        help="per fold: the cheapest setting within --tolerance of the preset's J, or the best J")
     args = parser.parse_args()
+    grid = GRID if args.grid == "speed" else WEIGHTS_GRID
     record = json.loads((args.dump / "kfold.json").read_text())
     root = args.dump / "davis-480p-from-240p"
     folds = record["folds"]
-    jobs = [(root, args.dump / f"fold{i}" / "heldout", name, args.every) for i, names in enumerate(folds)
+    jobs = [(root, args.dump / f"fold{i}" / "heldout", name, args.every, args.preset, grid)
+            for i, names in enumerate(folds)
             for name in names]
     files = sorted((root / "JPEGImages" / "480p" / folds[0][0]).glob("*.png"))[:20]
     cv2.setNumThreads(1)
@@ -98,10 +115,10 @@ def main() -> int:
     after = reference_ms(files, 0.5, 1)
     reference = 0.5 * (before + after)
     fold_of = {name: i for i, names in enumerate(folds) for name in names}
-    labels = [label for label, _ in GRID]
+    labels = [label for label, _ in grid]
     mean_j = lambda names, k: float(np.mean([rows[n]["J"][k] for n in names]))  # noqa: E731
     weights = np.array([rows[n]["frames"] for n in rows], float)
-    cost = [float(np.average([rows[n]["ms"][k] for n in rows], weights=weights)) for k in range(len(GRID))]
+    cost = [float(np.average([rows[n]["ms"][k] for n in rows], weights=weights)) for k in range(len(grid))]
     print(f"R = {reference:.1f} ms ({before:.1f} before, {after:.1f} after); every {args.every}th scored frame, "
           f"{int(weights.sum())} frames of {len(rows)} sequences")
     print(f"{'setting':<26}{'J':>7}{'ms':>8}{'R':>7}")
@@ -110,15 +127,19 @@ def main() -> int:
     chosen, heldout_j = {}, {}
     for i, names in enumerate(folds):
         others = [n for n in rows if fold_of[n] != i]
-        floor = mean_j(others, 0) - args.tolerance
-        k = min((k for k in range(len(GRID)) if mean_j(others, k) >= floor), key=lambda k: cost[k])
+        if args.choose == "best":
+            k = max(range(len(grid)), key=lambda k: mean_j(others, k))
+        else:
+            floor = mean_j(others, 0) - args.tolerance
+            k = min((k for k in range(len(grid)) if mean_j(others, k) >= floor), key=lambda k: cost[k])
         chosen[i] = labels[k]
         heldout_j.update({n: rows[n]["J"][k] for n in names})
     print("chosen per fold (on the other folds): " + ", ".join(f"{i}: {c}" for i, c in chosen.items()))
     nested = float(np.mean(list(heldout_j.values())))
     print(f"nested: J {nested:.3f} against the preset's {mean_j(list(rows), 0):.3f} on the same frames")
-    out = args.dump / "crf-speed-sweep.json"
-    out.write_text(json.dumps({"reference_ms": reference, "every": args.every, "grid": GRID, "cost_ms": cost,
+    out = args.dump / f"crf-{args.grid}-sweep.json"
+    out.write_text(json.dumps({"reference_ms": reference, "every": args.every, "preset": args.preset,
+                               "choose": args.choose, "grid": grid, "cost_ms": cost,
                                "sequences": rows, "chosen": chosen, "nested_J": nested}, indent=2))
     return 0
 

@@ -51,7 +51,7 @@ def _score_sequence(job: tuple) -> list[float]:
     from eponet.plugins.refiner.densecrf import densecrf_mask
 
     root, saliency, name, settings = job
-    authors = {k: v for k, v in authors_crf().items() if k != "plugin"}
+    authors = {k: v for k, v in authors_crf().items() if k not in ("plugin", "helper_process")}
     sequence = load_dataset("davis2016", root, sequences=[name])[name]
     scores = [[] for _ in settings]
     for frame in sequence.scored:

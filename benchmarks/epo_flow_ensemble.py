@@ -96,7 +96,7 @@ def main() -> int:
                             ROOT / "runs" / "ablation")
     for flow in FLOWS:
         saliency_maps(args.out / flow / "weights.pt", flow, args.out / flow / "saliency", davis, sequences)
-    crf = {k: v for k, v in authors_crf().items() if k != "plugin"}
+    crf = {k: v for k, v in authors_crf().items() if k not in ("plugin", "helper_process")}
     combos = {"medium": ["medium"], "fine": ["fine"], "mean of both": list(FLOWS)}
     results = {}
     for label, flows in combos.items():
