@@ -120,6 +120,15 @@ def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None) -> d
     return out
 
 
+def epo_crf() -> dict:
+    """The ``epo`` preset's refiner, every parameter spelt out (a spec's refiner merges onto its preset's)."""
+    from eponet.core.registry import get_registry
+
+    registry = get_registry()
+    defaults = {p.name: p.default for p in registry.get("refiner", "densecrf").params}
+    return {**defaults, **registry.resolve_preset("epo")["refiner"]}
+
+
 def fusion_recipe_without(sequences: list[str], motion_net: Path) -> dict:
     """The EpO+ fusion recipe (``examples/train-epo-plus.yaml``, absolute paths) on top of the frozen
     ``motion_net``, trained without ``sequences`` and validated on them."""
@@ -159,7 +168,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         seconds = dict(zip(which, pool.map(train, which)))
     scored = {i: [n for n in split[i] if not only or n in only] for i in which}
     davis = validation_root(DAVIS, [n for i in which for n in scored[i]], out)
-    crf = authors_crf() if refiner == "authors" else None
+    crf = {"authors": authors_crf, "epo": epo_crf}.get(refiner, lambda: None)()
     per_sequence = {}
     for i in which:
         stages = {"motion_net": {"plugin": "epo_unet", "weights": str(weights / f"fold{i}" / "weights.pt")}}
@@ -188,7 +197,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None, help="default: runs/kfold-<what>")
     parser.add_argument("--jobs", type=int, default=2, help="folds trained at once (one thread each)")
     parser.add_argument("--folds", default=None, help="comma-separated fold indices (default: all)")
-    parser.add_argument("--refiner", choices=("preset", "authors"), default="preset")
+    parser.add_argument("--refiner", choices=("preset", "authors", "epo"), default="preset",
+                        help="the preset's CRF, the authors' (the plugin's defaults at 427 px) or the epo preset's")
     parser.add_argument("--preset", default="epo", help="epo: the preset the held-out sequences run through (its "
                         "motion network replaced by the fold's), e.g. epo-st")
     parser.add_argument("--fusion", nargs="*", default=[],
