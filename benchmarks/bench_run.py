@@ -14,7 +14,10 @@ same frames, single-threaded and with OpenCV's threads, so that figures from dif
 compare as ratios (cost = wall ms per frame / R).
 
 ``--lengths``: one long video per length, a DAVIS sequence played forwards and backwards (a folder of symbolic
-links to the frames, nothing copied) through the same command: frames/s and peak RSS against length.
+links to the frames, nothing copied) through the same command: frames/s and peak RSS against length;
+``--rss-curve 300``: the run process's peak RSS per 300 frames written, to tell memory that grows with the video
+from a higher constant. The child inherits the environment, so glibc's ``MALLOC_MMAP_THRESHOLD_`` (see the
+README's "Speed" section) is measured by setting it for this command.
 """
 
 from __future__ import annotations
@@ -59,21 +62,38 @@ def reference_ms(files: list[Path], scale: float, threads: int | None) -> float:
         cv2.setNumThreads(previous)
 
 
-def run_cli(spec: dict, folder: Path, quiet: bool = True, prefix: tuple = ()) -> dict:
+def _rss_mb(pid: int) -> float:
+    """Resident set of process ``pid`` in MB (0 once it is gone)."""
+    try:
+        with open(f"/proc/{pid}/status") as status:
+            return next(int(line.split()[1]) for line in status if line.startswith("VmRSS")) / 1024
+    except (OSError, StopIteration):
+        return 0.0
+
+
+def run_cli(spec: dict, folder: Path, quiet: bool = True, prefix: tuple = (), curve: int = 0) -> dict:
     """Run ``python -m eponet.run`` on ``spec`` in a child process (after ``prefix``, e.g. ``taskset -c 0``);
-    wall time, CPU time and peak RSS."""
+    wall time, CPU time and peak RSS. ``curve``: also sample the run process's RSS every second against the
+    masks written so far, and give its peak per ``curve`` frames (``rss_curve``: ``[(first frame, MB), ...]``)."""
     import yaml
 
     path = folder / "spec.yaml"
     path.write_text(yaml.safe_dump(spec))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    done = subprocess.run([*prefix, sys.executable, "-m", "eponet.run", str(path), "--no-cache", "-q"], cwd=folder,
-                          capture_output=True, text=True)
+    child = subprocess.Popen([*prefix, sys.executable, "-m", "eponet.run", str(path), "--no-cache", "-q"], cwd=folder,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    peaks: dict[int, float] = {}
+    masks = Path(spec["output"]["dir"])
+    while curve and child.poll() is None:
+        written = sum(1 for _ in masks.rglob("*.png")) if masks.is_dir() else 0
+        peaks[written // curve] = max(peaks.get(written // curve, 0.0), _rss_mb(child.pid))
+        time.sleep(1.0)
+    stderr = child.communicate()[1]
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if done.returncode != 0:
-        raise SystemExit(f"eponet.run failed ({done.returncode}): {done.stderr.strip()}")
+    if child.returncode != 0:
+        raise SystemExit(f"eponet.run failed ({child.returncode}): {stderr.strip()}")
     manifest = json.loads((Path(spec["output"]["dir"]) / "run.json").read_text())
     frames = sum(s["frames"] for s in manifest["sequences"].values())
     stages: dict[str, float] = {}
@@ -83,7 +103,8 @@ def run_cli(spec: dict, folder: Path, quiet: bool = True, prefix: tuple = ()) ->
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return {"frames": frames, "wall_s": wall, "fps": frames / wall, "cpu_percent": 100 * cpu / wall,
             # ru_maxrss of RUSAGE_CHILDREN is the largest single descendant (KiB on Linux)
-            "peak_rss_mb": after.ru_maxrss / 1024, "stages_s": stages, "workers": manifest.get("workers")}
+            "peak_rss_mb": after.ru_maxrss / 1024, "stages_s": stages, "workers": manifest.get("workers"),
+            "rss_curve": [(k * curve, mb) for k, mb in sorted(peaks.items()) if mb > 0]}
 
 
 def long_video(folder: Path, files: list[Path], length: int) -> Path:
@@ -106,6 +127,8 @@ def main() -> int:
     parser.add_argument("--lengths", default="", help="comma-separated lengths of single long videos (e.g. 300,1000)")
     parser.add_argument("--one-core", action="store_true",
                         help="also run each long video on one core (taskset -c 0): what the other cores add to one video")
+    parser.add_argument("--rss-curve", type=int, default=0, metavar="FRAMES",
+                        help="with --lengths: the run process's peak RSS per this many frames written (sampled every s)")
     parser.add_argument("--scale", type=float, default=0.5)
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         help="extra spec values KEY.PATH=VALUE (YAML), e.g. run.chunk=32")
@@ -159,10 +182,14 @@ def main() -> int:
         lengths = [int(v) for v in args.lengths.split(",") if v]
         for length in lengths:
             folder = long_video(tmp / f"long-{length}" / "video", files[sequences[0]], length)
-            result = run_cli(spec_for(folder, tmp / f"long-out-{length}", 1), tmp)
+            result = run_cli(spec_for(folder, tmp / f"long-out-{length}", 1), tmp, curve=args.rss_curve)
             ms = 1000 / result["fps"]
             print(f"  one video of {length} frames ({sequences[0]} forwards and backwards): {result['fps']:.2f} frames/s "
                   f"= {ms / r1:.1f} R1; CPU {result['cpu_percent']:.0f}%; peak RSS {result['peak_rss_mb']:.0f} MB")
+            if result["rss_curve"]:
+                print("    peak RSS of the run process while frames " + ", ".join(
+                    (f"{first}-{min(first + args.rss_curve, length) - 1}" if first < length else "(the end)") + f": {mb:.0f}"
+                    for first, mb in result["rss_curve"]) + " MB were written")
             if args.one_core:
                 alone = run_cli(spec_for(folder, tmp / f"long-one-core-{length}", 1), tmp, prefix=("taskset", "-c", "0"))
                 print(f"    on one core (taskset -c 0): {alone['fps']:.2f} frames/s = {1000 / alone['fps'] / r1:.1f} R1; "
