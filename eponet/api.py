@@ -104,6 +104,7 @@ def segment(video, preset: str = "epo", *, scale: float = 0.5, max_frames: int |
     from .core.outputs import ed_at_input_size
     from .core.pipeline import Pipeline, _Timer
     from .core.spec import parse_spec
+    from .core.workers import blas_threads_limited
 
     path = Path(video) if isinstance(video, (str, Path)) else None
     document = {"preset": preset, "input": {"path": str(path or "."), "scale": scale, "max_frames": max_frames},
@@ -130,7 +131,8 @@ def segment(video, preset: str = "epo", *, scale: float = 0.5, max_frames: int |
                          f"{type(video).__name__}")
     pipeline = Pipeline(spec)
     timer = _Timer()
-    result = pipeline.process(clip, timer)
+    with blas_threads_limited():  # small matrices: see eponet.core.workers.BLAS_THREADS
+        result = pipeline.process(clip, timer)
     manifest = pipeline.record({"api": "eponet.segment"})
     manifest["spec"]["input"]["path"] = str(path) if path is not None else None
     manifest["spec"].pop("output")

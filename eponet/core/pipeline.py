@@ -28,7 +28,7 @@ from . import progress
 from .sanity import SequenceChecks
 from .spec import Spec
 from .stream import FrameItem, SequenceStream, memory_estimate, video_digest
-from .workers import run_in_workers, torch_threads, torch_threads_limited, worker_count
+from .workers import blas_threads_limited, run_in_workers, torch_threads, torch_threads_limited, worker_count
 from .types import FlowPair, Video
 
 __all__ = ["Pipeline", "run_spec", "stage_times_line", "library_versions", "memory_warning", "MEMORY_WARNING_BYTES"]
@@ -286,7 +286,7 @@ class Pipeline:
 
                 manifest["ray"] = run_on_ray(self, todo, finished, failed)
             elif workers <= 1:
-                with torch_threads_limited(torch_threads(1, spec.run.threads)):
+                with torch_threads_limited(torch_threads(1, spec.run.threads)), blas_threads_limited():
                     for source in todo:
                         try:
                             entry = self.run_sequence(source)

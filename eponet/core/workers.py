@@ -13,7 +13,15 @@ from .inputs import SequenceSource
 from .progress import listening
 from .spec import Spec
 
-__all__ = ["worker_count", "run_in_workers", "limit_threads", "torch_threads", "torch_threads_limited"]
+__all__ = ["worker_count", "run_in_workers", "limit_threads", "torch_threads", "torch_threads_limited",
+           "blas_threads_limited", "BLAS_THREADS"]
+
+#: Threads of numpy's BLAS (OpenBLAS, MKL) in a run. The geometry's linear algebra is on small matrices (27 x 27
+#: normal equations, batches of 3 x 3 and 9 x 9 systems), where BLAS threads cost more to wake than they save and
+#: spin next to the run loop's other threads: measured on 2 cores, preset ``geometry`` on 40 frames of 427x240,
+#: 8.9-10.4 s of CPU with one thread against 16.8-20.1 s with two (identical maps); a 27 x 27 ``eigh`` 0.09 ms
+#: against 4.9 ms while the other core was busy.
+BLAS_THREADS = 1
 
 
 def worker_count(setting, sequences: int) -> int:
@@ -46,6 +54,16 @@ def torch_threads_limited(threads: int):
         torch.set_num_threads(before)
 
 
+@contextmanager
+def blas_threads_limited(threads: int = BLAS_THREADS):
+    """numpy's BLAS limited to ``threads`` for the duration of the block (:data:`BLAS_THREADS`), restored after
+    it (threadpoolctl, which also finds a BLAS that another package loaded)."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=threads, user_api="blas"):
+        yield
+
+
 _WORKER = None  # the worker process's Pipeline
 
 
@@ -66,10 +84,13 @@ def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int
 
 
 def limit_threads(threads: int) -> None:
-    """Each worker gets its share of the cores for torch and OpenCV, so that workers do not oversubscribe."""
+    """Each worker gets its share of the cores for torch and OpenCV, so that workers do not oversubscribe, and
+    numpy's BLAS :data:`BLAS_THREADS` (for the life of the process: workers and Ray actors only run sequences)."""
     import cv2
+    from threadpoolctl import threadpool_limits
 
     cv2.setNumThreads(threads)
+    threadpool_limits(limits=BLAS_THREADS, user_api="blas")
     try:
         import torch
 
