@@ -6,7 +6,8 @@ against the machine's reference: OpenCV DIS ``medium`` forward+backward on the s
 Multi-sequence run: the first ``--sequences`` DAVIS-2016 train sequences (sorted names) under ``--root``
 (``../shared/data/davis2016-train/DAVIS``) as 854x480 frames (the shared data has 480p frames of three
 sequences only, so the 240p frames are upsampled once into ``runs/davis-480p-from-240p``, as every held-out
-figure does), at most ``--frames`` frames each (``input.max_frames``), scale 0.5, cache off, masks written. For each ``--workers``
+figure does), at most ``--frames`` frames each (``input.max_frames``), scale 0.5, cache off, masks written
+(ED maps for ``--preset geometry``, which has no refiner). For each ``--workers``
 setting: frames/s, CPU % of one core (user + system time of the run's processes over its wall time), peak RSS of
 the largest process and the share of each stage (from ``run.json``). Each figure is also given in reference
 units: ``R`` = milliseconds per frame of DIS medium forward+backward, measured in the same invocation on the
@@ -74,7 +75,7 @@ def _rss_mb(pid: int) -> float:
 def run_cli(spec: dict, folder: Path, quiet: bool = True, prefix: tuple = (), curve: int = 0) -> dict:
     """Run ``python -m eponet.run`` on ``spec`` in a child process (after ``prefix``, e.g. ``taskset -c 0``);
     wall time, CPU time and peak RSS. ``curve``: also sample the run process's RSS every second against the
-    masks written so far, and give its peak per ``curve`` frames (``rss_curve``: ``[(first frame, MB), ...]``)."""
+    masks (or ED maps) written so far, and give its peak per ``curve`` frames (``rss_curve``: ``[(first frame, MB), ...]``)."""
     import yaml
 
     path = folder / "spec.yaml"
@@ -86,7 +87,7 @@ def run_cli(spec: dict, folder: Path, quiet: bool = True, prefix: tuple = (), cu
     peaks: dict[int, float] = {}
     masks = Path(spec["output"]["dir"])
     while curve and child.poll() is None:
-        written = sum(1 for _ in masks.rglob("*.png")) if masks.is_dir() else 0
+        written = sum(1 for f in masks.rglob("*") if f.suffix in (".png", ".npy")) if masks.is_dir() else 0
         peaks[written // curve] = max(peaks.get(written // curve, 0.0), _rss_mb(child.pid))
         time.sleep(1.0)
     stderr = child.communicate()[1]
@@ -151,8 +152,9 @@ def main() -> int:
           f"({os.cpu_count()} cores)")
 
     def spec_for(path: Path, out: Path, workers, max_frames=None) -> dict:
+        save = ["ed"] if args.preset == "geometry" else ["masks"]  # the geometry preset has no refiner
         spec = {"preset": args.preset, "input": {"path": str(path), "scale": args.scale, "max_frames": max_frames},
-                "output": {"dir": str(out), "save": ["masks"]}, "run": {"workers": workers},
+                "output": {"dir": str(out), "save": save}, "run": {"workers": workers},
                 "cache": {"enabled": False}}
         for item in args.overrides:
             key, _, value = item.partition("=")
