@@ -286,7 +286,7 @@ class Pipeline:
 
                 manifest["ray"] = run_on_ray(self, todo, finished, failed)
             elif workers <= 1:
-                with torch_threads_limited(torch_threads(1, spec.run.threads)), blas_threads_limited():
+                with torch_threads_limited(torch_threads(os.cpu_count() or 1, spec.run.threads)), blas_threads_limited():
                     for source in todo:
                         try:
                             entry = self.run_sequence(source)

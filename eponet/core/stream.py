@@ -415,25 +415,31 @@ class SequenceStream:
     # -- the ED scale and the motion images -----------------------------------------------------
     def _ed_scale(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
         """Each frame's ED scale over ``run.ed_window`` frames centred on it (``None``: the whole video, so every
-        frame waits for the last)."""
+        frame waits for the last). The samples of consecutive frames are kept by ascending frame, and a window
+        equal to the previous frame's (the whole video, or both clipped by the video's ends) is not scored again."""
         half = self.ed_window // 2 if self.ed_window is not None else sys.maxsize
         samples: dict[int, np.ndarray] = {}
         waiting: deque[FrameItem] = deque()
+        scored: tuple = (None, None)  # ((first, last) frame of the last window, its scale)
+
+        def scaled(item: FrameItem) -> FrameItem:
+            nonlocal scored
+            window = (max(item.t - half, next(iter(samples))), min(item.t + half, next(reversed(samples))))
+            if scored[0] != window:
+                frames = range(window[0], window[1] + 1)
+                scored = (window, ed_window_scale([samples[t] for t in frames if t in samples]))
+            item.ed_scale = scored[1]
+            while samples and next(iter(samples)) < item.t - half + 1:  # not in the next frame's window
+                del samples[next(iter(samples))]
+            return item
+
         for item in stream:
             samples[item.t] = ed_frame_sample(item.ed)
             waiting.append(item)
             while waiting and waiting[0].t + half <= item.t:
-                yield self._scaled(waiting.popleft(), samples, half)
+                yield scaled(waiting.popleft())
         while waiting:
-            yield self._scaled(waiting.popleft(), samples, half)
-
-    @staticmethod
-    def _scaled(item: FrameItem, samples: dict, half: int) -> FrameItem:
-        window = [sample for t, sample in samples.items() if abs(t - item.t) <= half]
-        item.ed_scale = ed_window_scale(window)
-        for t in [t for t in samples if t < item.t - half + 1]:
-            del samples[t]
-        return item
+            yield scaled(waiting.popleft())
 
     def _motion_images(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
         for item in stream:

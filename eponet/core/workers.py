@@ -31,14 +31,14 @@ def worker_count(setting, sequences: int) -> int:
     return max(1, min(int(setting), max(sequences, 1)))
 
 
-def torch_threads(workers: int, overlapped: bool) -> int:
-    """torch threads of each of ``workers`` processes: its share of the cores, halved when the stages of a video
-    overlap in threads (``run.threads``). torch's OpenMP threads spin while they wait for each other, so next to
-    the flow and geometry threads a full share burns the cores it should leave them (measured on 2 cores, one
-    300-frame video, preset ``epo``: 14.0 R per frame with 2 torch threads, 9.9 R with 1). OpenCV keeps the full
-    share (its pool does not spin: 11.5 R with both at 1)."""
-    share = max(1, (os.cpu_count() or 1) // max(1, workers))
-    return max(1, share // 2) if overlapped else share
+def torch_threads(cores: int, overlapped: bool) -> int:
+    """torch threads of a process with ``cores`` cores (its share of the machine's): all of them, or half when the
+    stages of a video overlap in threads (``run.threads``). torch's OpenMP threads spin while they wait for each
+    other, so next to the flow and geometry threads a full share burns the cores it should leave them (measured on
+    2 cores, one 300-frame video, preset ``epo``: 14.0 R per frame with 2 torch threads, 9.9 R with 1). OpenCV
+    keeps the full share (its pool does not spin: 11.5 R with both at 1)."""
+    cores = max(1, cores)
+    return max(1, cores // 2) if overlapped else cores
 
 
 @contextmanager
@@ -69,11 +69,7 @@ _WORKER = None  # the worker process's Pipeline
 
 def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int, reports) -> None:
     global _WORKER
-    limit_threads(threads)
-    if spec.run.threads:
-        import torch
-
-        torch.set_num_threads(max(1, threads // 2))
+    limit_threads(threads, overlapped=spec.run.threads)
     from .progress import forward_to, set_quiet
 
     from .pipeline import Pipeline
@@ -83,9 +79,10 @@ def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int
     _WORKER = Pipeline(spec, cache=Cache(cache_root, enabled=cache_enabled))
 
 
-def limit_threads(threads: int) -> None:
-    """Each worker gets its share of the cores for torch and OpenCV, so that workers do not oversubscribe, and
-    numpy's BLAS :data:`BLAS_THREADS` (for the life of the process: workers and Ray actors only run sequences)."""
+def limit_threads(threads: int, *, overlapped: bool = False) -> None:
+    """Each worker gets its share of the cores, ``threads``, for OpenCV and torch (:func:`torch_threads`: half
+    of it with ``overlapped`` stages), so that workers do not oversubscribe, and numpy's BLAS :data:`BLAS_THREADS`
+    (for the life of the process: workers and Ray actors only run sequences)."""
     import cv2
     from threadpoolctl import threadpool_limits
 
@@ -94,7 +91,7 @@ def limit_threads(threads: int) -> None:
     try:
         import torch
 
-        torch.set_num_threads(threads)
+        torch.set_num_threads(torch_threads(threads, overlapped))
     except ImportError:  # pragma: no cover - torch is a dependency
         pass
 
