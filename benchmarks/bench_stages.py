@@ -13,6 +13,8 @@ default 1), after a warm-up batch:
   random: a convolution's cost does not depend on the values.
 - ``flow``: the presets' flow (``dis``, ``medium`` with ``finest_scale: 0``) forward + backward per frame, and
   OpenCV's own ``medium`` (``finest_scale: null``, which is R's computation) through the same stage.
+- ``rigidity``: the presets' trifocal stage on the dense trajectories of the frames (DIS flow, not timed), with
+  numpy's BLAS on one thread, as runs hold it, and on every core (``--stages rigidity``, not in the default set).
 - ``refiner``: the ``epo`` preset's dense CRF (854x480 frames and probabilities, run at 427 px wide) on real
   frames, split into its parts (resizing and unary, the Gaussian and bilateral kernels' set-up, the five
   mean-field iterations), and ``densecrf_mask`` as the stage calls it.
@@ -21,6 +23,7 @@ default 1), after a warm-up batch:
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -89,6 +92,29 @@ def bench_flow(frames: list[np.ndarray]) -> dict[str, float]:
     return figures
 
 
+def bench_rigidity(frames: list[np.ndarray]) -> dict[str, float]:
+    """The presets' trifocal rigidity on the dense trajectories of ``frames`` at 427x240, with numpy's BLAS on
+    one thread (as runs hold it, :data:`eponet.core.workers.BLAS_THREADS`) and on every core (its default)."""
+    from threadpoolctl import threadpool_limits
+
+    from eponet.core.types import Video
+    from eponet.plugins.flow.dis import DisFlow
+    from eponet.plugins.rigidity.trifocal import TrifocalRigidity
+    from eponet.plugins.trajectories.dense import DenseTrajectories
+
+    small = np.stack([cv2.resize(f, SIZE, interpolation=cv2.INTER_AREA) for f in frames])
+    flow = DisFlow(preset="medium", finest_scale=0).estimate(Video("bench", small, [f"{t:05d}" for t in range(len(small))],
+                                                                   small.shape[1:3]))
+    tracks = DenseTrajectories().build(flow)
+    stage = TrifocalRigidity()
+    figures = {}
+    for threads in (1, os.cpu_count() or 1):
+        with threadpool_limits(limits=threads, user_api="blas"):
+            figures[f"trifocal, BLAS on {threads} thread(s)"] = _timed(
+                lambda: stage.score(tracks, flow, np.random.default_rng(0)), len(frames), repeats=2)
+    return figures
+
+
 def bench_refiner(frames: list[np.ndarray]) -> dict[str, float]:
     import pydensecrf.densecrf as dcrf
     from pydensecrf.utils import unary_from_softmax
@@ -150,10 +176,12 @@ def main() -> int:
             results[stage] = bench_motion_net(args.frames)
         elif stage == "flow":
             results[stage] = bench_flow(frames)
+        elif stage == "rigidity":
+            results[stage] = bench_rigidity(frames)
         elif stage == "refiner":
             results[stage] = bench_refiner(frames[: min(8, len(frames))])
         else:
-            raise SystemExit(f"--stages: unknown stage {stage!r}; known: flow, motion_net, refiner")
+            raise SystemExit(f"--stages: unknown stage {stage!r}; known: flow, motion_net, rigidity, refiner")
     after = reference_ms(files, 0.5, args.threads)
     reference = 0.5 * (before + after)
     print(f"R = {reference:.1f} ms (DIS medium fwd+bwd per frame at {SIZE[0]}x{SIZE[1]}, {args.threads} thread(s); "
