@@ -18,9 +18,9 @@ __all__ = ["worker_count", "run_in_workers", "limit_threads", "torch_threads", "
 
 #: Threads of numpy's BLAS (OpenBLAS, MKL) in a run. The geometry's linear algebra is on small matrices (27 x 27
 #: normal equations, batches of 3 x 3 and 9 x 9 systems), where BLAS threads cost more to wake than they save and
-#: spin next to the run loop's other threads: measured on 2 cores, preset ``geometry`` on 40 frames of 427x240,
-#: 8.9-10.4 s of CPU with one thread against 16.8-20.1 s with two (identical maps); a 27 x 27 ``eigh`` 0.09 ms
-#: against 4.9 ms while the other core was busy.
+#: spin next to the run loop's other threads: measured on 2 cores with the other core busy, preset ``geometry`` on
+#: 40 frames of 427x240, 8.9-10.4 s of CPU with one thread against 16.8-20.1 s with two (identical maps); a
+#: 27 x 27 ``eigh`` 0.09 ms against 4.9 ms. Alone on a quiet machine the difference is small (README, "Speed").
 BLAS_THREADS = 1
 
 
