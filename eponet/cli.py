@@ -10,7 +10,7 @@ import traceback
 from pathlib import Path
 from typing import Callable
 
-from .core.errors import EponetError, SpecError, UsageError
+from .core.errors import EponetError, InputError, SpecError, UsageError
 
 __all__ = ["main", "run_main", "guarded", "parse_size", "parse_duration"]
 
@@ -117,6 +117,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec, args.overrides)
     sources = discover_sequences(spec.input.path, sequences=spec.input.sequences, resolution=spec.input.resolution,
                                  max_frames=spec.input.max_frames)
+    for source in sources:  # an unreadable frame after the first three: a run would stop there
+        if source.stopped:
+            raise InputError(f"{source.stopped} (a run processes the {source.count} frames before it, then fails)")
     warn_about_memory(spec, sources)
     stages = ", ".join(f"{k}={c.plugin}" for k, c in spec.stages.items())
     print(f"{args.spec}: valid (preset {spec.preset}; {stages}; {len(sources)} sequence(s): "

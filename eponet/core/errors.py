@@ -106,6 +106,9 @@ class SequenceFailures(EponetError):
     def __init__(self, failures: dict[str, tuple[str, int]], total: int):
         self.failures = dict(failures)
         self.exit_code = 2 if all(code == 2 for _, code in self.failures.values()) else 1
+        if total == 1:  # the run's only sequence: its reason alone
+            super().__init__(next(iter(self.failures.values()))[0])
+            return
         reasons = "; ".join(reason if reason.startswith(name) else f"{name}: {reason}"
                             for name, (reason, _) in self.failures.items())
         super().__init__(f"{len(self.failures)} of {total} sequences failed ({reasons}); the others finished, and "

@@ -280,6 +280,8 @@ def _sequence_section(k: int, name: str, entry: dict, out_dir: Path, manifest: d
                       ("covered_frames", "the mask covers more than 90% of the frame")):
         if entry.get(key):
             parts.append(f'<p class="note">Frames where {what}: {_e(", ".join(map(str, entry[key])))}.</p>')
+    if entry.get("stopped"):  # cut short by a corrupt frame
+        parts.append(f'<p class="note">Cut short: {_e(entry["stopped"])}.</p>')
     if not folder.is_dir():
         parts.append(f'<p class="note">The sequence folder {_e(name)}/ is missing.</p></section>')
         return "".join(parts)

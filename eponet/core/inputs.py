@@ -4,7 +4,6 @@ or a glob of videos and frame folders)."""
 from __future__ import annotations
 
 import glob
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,10 +17,9 @@ from .types import MIN_FRAMES, MIN_SIDE, Video
 
 __all__ = ["SequenceSource", "discover_sequences", "iter_frames", "load_video", "video_from_frames", "processing_size"]
 
-log = logging.getLogger(__name__)
 
-#: A video whose decoder stops more than this many frames before the header's frame count gets a warning
-#: naming the frame (container headers are approximate; a corrupt frame mid-file ends decoding early).
+#: A video whose decoder stops more than this many frames before the header's frame count is cut short (container
+#: headers are approximate; a truncated file or a corrupt frame mid-file ends decoding early).
 VIDEO_COUNT_SLACK = 2
 
 
@@ -36,6 +34,9 @@ class SequenceSource:
     count: int = 0
     fps: float | None = None  # a video file's frame rate (its header's); None for frames or an unknown rate
     error: str | None = None  # a corpus entry that cannot run (missing, unreadable): the one-line reason
+    # a sequence cut short by a corrupt frame after the first MIN_FRAMES (or a video whose decoder stopped well
+    # before its header's count): the one-line reason naming that frame; the frames before it are processed
+    stopped: str | None = None
 
     @property
     def stems(self) -> list[str]:
@@ -161,18 +162,23 @@ def _check_frames(folder: Path, name: str, max_frames: int | None) -> SequenceSo
     if len(files) < MIN_FRAMES:
         raise InputError(f"{folder}: {len(files)} frame(s), the pipeline needs at least {MIN_FRAMES} (triplets)")
     size = None
-    for file in files:
+    stopped = None
+    for k, file in enumerate(files):
         try:
             with Image.open(file) as image:
                 width, height = image.size
         except (OSError, UnidentifiedImageError):
-            raise InputError(f"{file}: cannot read image (not an image or corrupt)") from None
+            reason = f"{file}: cannot read image (not an image or corrupt)"
+            if k < MIN_FRAMES:
+                raise InputError(reason) from None
+            files, stopped = files[:k], reason  # the frames before it still run (see SequenceSource.stopped)
+            break
         if size is None:
             size = (height, width)
             _check_size(file, size)
         elif (height, width) != size:
             raise InputError(f"{file}: frame is {width}x{height} but the first frame {files[0].name} is {size[1]}x{size[0]}")
-    return SequenceSource(name=name, files=files, size=size, count=len(files))
+    return SequenceSource(name=name, files=files, size=size, count=len(files), stopped=stopped)
 
 
 def _check_video(path: Path, max_frames: int | None) -> SequenceSource:
@@ -201,14 +207,20 @@ def iter_frames(source: SequenceSource, *, scale: float, max_frames: int | None 
     """Decode a sequence lazily: yields ``(stem, frame, full)`` per frame, ``frame`` uint8 RGB at the processing
     size (``scale``), ``full`` at the input size (``None`` unless ``keep_full``). One frame is decoded at a time.
 
-    Raises :class:`InputError` naming the file and frame for a corrupt frame, a frame whose size differs from
-    the first's, or a video with fewer than ``MIN_FRAMES`` decodable frames (a video's header frame count is
-    never trusted: frames are read until the decoder stops).
+    Raises :class:`InputError` naming the file and frame for a corrupt frame among the first ``MIN_FRAMES``, a
+    frame whose size differs from the first's, or a video with fewer than ``MIN_FRAMES`` decodable frames (a
+    video's header frame count is never trusted: frames are read until the decoder stops). A corrupt frame
+    after those, or a video whose decoder stops more than :data:`VIDEO_COUNT_SLACK` frames before its header's
+    count, ends the sequence there: ``source.stopped`` says why, naming the frame, and the frames before it
+    have been yielded.
     """
     size = source.size
     shape = None
     count = 0
     for stem, full, where in _decoded(source, max_frames):
+        if full is None:  # a corrupt frame (``where`` says why) after MIN_FRAMES good ones: the sequence ends here
+            source.stopped = where
+            return
         if size is None:
             size = full.shape[:2]
         if full.shape[:2] != tuple(size):
@@ -232,8 +244,17 @@ def _resized(frame: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 def _decoded(source: SequenceSource, max_frames: int | None):
     if source.files is not None:
-        for file in source.files[:max_frames] if max_frames else source.files:
-            yield file.stem, read_image(file), file
+        for k, file in enumerate(source.files[:max_frames] if max_frames else source.files):
+            try:
+                image = read_image(file)
+            except InputError as exc:
+                if k < MIN_FRAMES:
+                    raise
+                yield file.stem, None, str(exc)
+                return
+            yield file.stem, image, file
+        if source.stopped:  # the header check cut the list at an unreadable file
+            yield "", None, source.stopped
         return
     capture = cv2.VideoCapture(str(source.video))
     try:
@@ -242,9 +263,9 @@ def _decoded(source: SequenceSource, max_frames: int | None):
             ok, frame = capture.read()
             if not ok or frame is None:
                 announced = min(source.count, max_frames or source.count)
-                if t < announced - VIDEO_COUNT_SLACK:  # headers are approximate: a few frames short is normal
-                    log.warning("%s: the decoder stopped at frame %d of the %d the header announces (a corrupt or "
-                                "truncated file?); the sequence ends there", source.video, t, announced)
+                if t >= MIN_FRAMES and t < announced - VIDEO_COUNT_SLACK:  # a few frames short is normal
+                    yield f"{t:05d}", None, (f"{source.video}: the decoder stopped at frame {t} of the {announced} "
+                                             "the header announces (a corrupt or truncated file?)")
                 break
             yield f"{t:05d}", cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), f"{source.video} frame {t}"
             t += 1
@@ -254,12 +275,15 @@ def _decoded(source: SequenceSource, max_frames: int | None):
 
 def load_video(source: SequenceSource, *, scale: float, max_frames: int | None = None, keep_full: bool = True) -> Video:
     """Decode a whole sequence into memory (:func:`iter_frames` collected); ``frames`` are at the processing
-    resolution (``scale``). The run loop streams instead; this is for tools that need the whole video."""
+    resolution (``scale``). The run loop streams instead; this is for tools that need the whole video, so a
+    sequence cut short (``source.stopped``) is an :class:`InputError` here."""
     stems, frames, full = [], [], []
     for stem, frame, whole in iter_frames(source, scale=scale, max_frames=max_frames, keep_full=True):
         stems.append(stem)
         frames.append(frame)
         full.append(whole)
+    if source.stopped:
+        raise InputError(source.stopped)
     sources = [str(f) for f in source.files[: len(stems)]] if source.files is not None else [str(source.video)]
     size = full[0].shape[:2]
     return Video(

@@ -180,7 +180,7 @@ class Pipeline:
         writer = SequenceWriter(spec.output.dir, source.name, spec.output.save, size, shape,
                                 fps=spec.output.fps or source.fps)
         checks = SequenceChecks(source.name)
-        count = 0
+        count, first_stem, last_stem = 0, None, None
         report = progress.current()
         report.start(source.name, source.count)
         try:
@@ -191,6 +191,7 @@ class Pipeline:
                 write_time += time.perf_counter() - start
                 checks.observe(item.t, item.motion_flow, item.mask)
                 count += 1
+                first_stem, last_stem = first_stem or item.stem, item.stem
                 report.advance(source.name)
             writer.close()
         except BaseException:
@@ -210,6 +211,8 @@ class Pipeline:
             "triplets": _summarise_triplets(stream.triplets),
             **checks.finish(),
             "config": self.config_digest(),
+            **({"stopped": f"{source.stopped}; the sequence ends there: its first {count} frames ({first_stem} to "
+                           f"{last_stem}) were processed and their outputs kept"} if source.stopped else {}),
         }
 
     def config_digest(self) -> str:
@@ -248,7 +251,8 @@ class Pipeline:
             """A sequence that cannot finish: named on the console and in ``run.json``; the others go on."""
             failures[name] = (reason, exit_code)
             manifest["failed"] = {n: {"reason": r, "exit_code": c} for n, (r, c) in failures.items()}
-            log.error("%s: failed: %s", name, reason)
+            if len(sources) > 1:  # a run of one sequence ends with this line as its error
+                log.error("%s: failed: %s", name, reason)
             _write_manifest(spec.output.dir / "run.json", manifest)
 
         for source in sources:
@@ -256,7 +260,8 @@ class Pipeline:
             if source.error is not None:  # a corpus entry that is missing or unreadable
                 failed(source.name, source.error, 2)
                 continue
-            if entry and entry.get("config") == config and (spec.output.dir / source.name).is_dir():
+            if (entry and entry.get("config") == config and not entry.get("stopped")
+                    and (spec.output.dir / source.name).is_dir()):
                 manifest["sequences"][source.name] = {**entry, "resumed": True}
                 log.info("%s: finished by an earlier run of this spec; skipped", source.name)
             else:
@@ -272,6 +277,8 @@ class Pipeline:
             manifest["sequences"][name] = entry
             manifest["sequences"] = dict(sorted(manifest["sequences"].items(), key=lambda kv: order.get(kv[0], 0)))
             _write_manifest(spec.output.dir / "run.json", manifest)
+            if entry.get("stopped"):  # cut short by a corrupt frame: its outputs are kept, and the run fails
+                failed(name, entry["stopped"], 2)
             done.append(name)
             log.info("%s", stage_times_line(name, entry))
             log.info("%d/%d sequences done, %.1f s elapsed", len(done), len(todo), time.time() - started)

@@ -109,6 +109,26 @@ def test_validate_warns_about_the_memory_of_4000x3000_frames(tmp_path):
         "(run.chunk 16, run.lag 30), above the 8 GiB warning bound; a lower input.scale, run.chunk or run.lag uses less"]
 
 
+def test_a_corrupt_frame_mid_folder_is_one_line_exit_2_and_the_frames_before_it_are_kept(tmp_path):
+    from tests.conftest import textured_frames, write_frames
+
+    paths = write_frames(tmp_path / "clip", textured_frames(6))
+    paths[4].write_bytes(b"not an image")
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"preset: geometry\ninput: {{path: {tmp_path / 'clip'}, scale: 1.0}}\n"
+                    f"stages: {{trajectories: null, rigidity: null}}\n"
+                    f"output: {{dir: {tmp_path / 'out'}, save: [flow]}}\ncache: {{enabled: false}}\n")
+    result = _run("eponet", "validate", str(spec))
+    assert result.returncode == 2 and result.stderr.splitlines() == [
+        f"error: {paths[4]}: cannot read image (not an image or corrupt) (a run processes the 4 frames before it, "
+        "then fails)"]
+    result = _run("eponet.run", str(spec), "-q")
+    assert result.returncode == 2 and result.stderr.splitlines() == [
+        f"error: {paths[4]}: cannot read image (not an image or corrupt); the sequence ends there: its first 4 "
+        "frames (00000 to 00003) were processed and their outputs kept"]
+    assert len(list((tmp_path / "out" / "clip" / "flow" / "forward").iterdir())) == 3
+
+
 def test_cache_info_and_prune_report_sizes_and_stages(tmp_path, capsys):
     import os
     import time

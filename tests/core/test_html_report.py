@@ -166,6 +166,13 @@ def test_a_run_without_evaluation_or_with_a_failed_one(run_copy):
     assert "Scoring failed: InputError: Annotations/240p &lt;missing&gt;" in render_report(run_copy, manifest)
 
 
+def test_a_sequence_cut_short_says_so(run_copy):
+    manifest = _manifest(run_copy)
+    manifest["sequences"]["demo"]["stopped"] = "demo/00020.jpg: cannot read image; its first 20 frames were kept"
+    section = _section(render_report(run_copy, manifest), "sequences")
+    assert '<p class="note">Cut short: demo/00020.jpg: cannot read image; its first 20 frames were kept.</p>' in section
+
+
 def test_names_and_values_are_escaped(run_copy):
     manifest = _manifest(run_copy)
     manifest["sequences"] = {"<b>x</b>": {**manifest["sequences"]["demo"], "cached": ["<i>"]}}

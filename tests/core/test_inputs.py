@@ -73,21 +73,35 @@ def test_bad_inputs_name_the_problem(tmp_path, case):
         discover_sequences(path)
 
 
-def test_a_video_cut_short_warns_naming_the_frame_it_stopped_at(tmp_path, caplog):
+def test_a_video_cut_short_says_the_frame_it_stopped_at(tmp_path):
     """A file truncated mid-way (or with a corrupt frame) ends decoding early; the header still announces
-    every frame. The sequence ends there with a warning naming the frame, not silently."""
-    import logging
-
+    every frame. The sequence ends there, not silently: ``stopped`` names the frame (the run fails with it
+    after writing the frames before), and a tool that needs the whole video gets it as an error."""
     whole = write_video(tmp_path / "whole.avi", textured_frames(20, (48, 64)))
     cut = tmp_path / "cut.avi"
     cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
-    with caplog.at_level(logging.WARNING):
-        assert sum(1 for _ in iter_frames(discover_sequences(whole)[0], scale=1.0)) == 20
-        assert caplog.text == ""
-        source = discover_sequences(cut)[0]
-        decoded = sum(1 for _ in iter_frames(source, scale=1.0))
+    complete = discover_sequences(whole)[0]
+    assert sum(1 for _ in iter_frames(complete, scale=1.0)) == 20 and complete.stopped is None
+    source = discover_sequences(cut)[0]
+    decoded = sum(1 for _ in iter_frames(source, scale=1.0))
     assert source.count == 20 and 3 <= decoded < 18
-    assert f"cut.avi: the decoder stopped at frame {decoded} of the 20 the header announces" in caplog.text
+    assert source.stopped == (f"{cut}: the decoder stopped at frame {decoded} of the 20 the header announces "
+                              "(a corrupt or truncated file?)")
+    with pytest.raises(InputError, match="the decoder stopped at frame"):
+        load_video(discover_sequences(cut)[0], scale=1.0)
+
+
+def test_a_corrupt_frame_after_the_first_three_cuts_the_folder_there(tmp_path):
+    paths = write_frames(tmp_path / "seq", textured_frames(6))
+    paths[4].write_bytes(paths[4].read_bytes()[:60])  # the header reads, the body does not
+    source = discover_sequences(tmp_path / "seq")[0]
+    assert source.count == 6 and source.stopped is None  # found when decoding
+    assert [stem for stem, _, _ in iter_frames(source, scale=1.0)] == ["00000", "00001", "00002", "00003"]
+    assert source.stopped.startswith(f"{paths[4]}: cannot read image")
+    paths[4].write_bytes(b"garbage")  # found when the folder is checked
+    source = discover_sequences(tmp_path / "seq")[0]
+    assert source.count == 4 and source.stopped == f"{paths[4]}: cannot read image (not an image or corrupt)"
+    assert len(list(iter_frames(source, scale=1.0))) == 4
 
 
 def test_a_folder_without_image_frames_says_so_and_what_is_accepted(tmp_path):

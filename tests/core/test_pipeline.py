@@ -83,6 +83,54 @@ def test_nothing_half_written_on_a_corrupt_frame(tmp_path):
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no partial folders left
 
 
+@pytest.mark.parametrize("damage", ["body", "header"])
+def test_a_corrupt_frame_mid_sequence_keeps_the_frames_before_it(tmp_path, damage):
+    """A corrupt frame after the first three ends its sequence there: the frames before it are processed and
+    written (the same files as a run on those frames alone), and the run fails with one line naming the file
+    and the frames kept (exit code 2); the other sequence is intact, and a re-run redoes only the cut one."""
+    from eponet.core.errors import SequenceFailures
+
+    root = tmp_path / "davis"
+    frames = textured_frames(8)
+    write_frames(root / "JPEGImages" / "480p" / "a", frames)
+    paths = write_frames(root / "JPEGImages" / "480p" / "b", frames)
+    # "body": a valid header and a truncated body (found when decoding); "header": not an image at all (found
+    # when the folder is checked, before anything runs)
+    paths[5].write_bytes(paths[5].read_bytes()[:60] if damage == "body" else b"not an image")
+    out = tmp_path / "out"
+    with pytest.raises(SequenceFailures) as caught:
+        Pipeline(_spec(root, out, tmp_path / "cache")).run()
+    assert caught.value.exit_code == 2
+    assert "b/00005.png: cannot read image" in str(caught.value)
+    assert "its first 5 frames (00000 to 00004) were processed and their outputs kept" in str(caught.value)
+    record = json.loads((out / "run.json").read_text())
+    assert list(record["sequences"]) == ["a", "b"] and list(record["failed"]) == ["b"]
+    assert record["sequences"]["b"]["frames"] == 5 and record["sequences"]["a"]["frames"] == 8
+    kept = sorted(p.name for p in (out / "b" / "flow" / "forward").iterdir())
+    assert kept == [f"{t:05d}.flo" for t in range(4)]
+    write_frames(tmp_path / "first5" / "b", frames[:5])
+    Pipeline(_spec(tmp_path / "first5" / "b", tmp_path / "ref", tmp_path / "cache2")).run()
+    for name in kept:
+        assert (out / "b" / "flow" / "forward" / name).read_bytes() == \
+            (tmp_path / "ref" / "b" / "flow" / "forward" / name).read_bytes()
+    with pytest.raises(SequenceFailures):
+        Pipeline(_spec(root, out, tmp_path / "cache")).run()
+    again = json.loads((out / "run.json").read_text())
+    assert again["sequences"]["a"].get("resumed") and not again["sequences"]["b"].get("resumed")
+
+
+def test_one_sequence_cut_short_fails_with_its_own_line(tmp_path):
+    paths = write_frames(tmp_path / "clip", textured_frames(6))
+    paths[4].write_bytes(b"not an image")
+    from eponet.core.errors import SequenceFailures
+
+    with pytest.raises(SequenceFailures) as caught:
+        Pipeline(_spec(tmp_path / "clip", tmp_path / "out", tmp_path / "cache")).run()
+    assert str(caught.value) == (f"{paths[4]}: cannot read image (not an image or corrupt); the sequence ends there: "
+                                 "its first 4 frames (00000 to 00003) were processed and their outputs kept")
+    assert len(list((tmp_path / "out" / "clip" / "flow" / "forward").iterdir())) == 3
+
+
 def test_motion_images_carry_unsaturated_ed_for_the_network_to_encode(tmp_path):
     """The pipeline hands the motion net ED scaled per video but not clipped: a small object moving on its own
     (here a 6x6 patch, about 2% of the frame) keeps its ED well above the background's 95th percentile."""
@@ -272,7 +320,7 @@ def test_a_sequence_that_fails_on_its_frames_does_not_stop_the_others(tmp_path, 
 
     for name in ("a", "b", "c"):
         write_frames(tmp_path / "corpus" / name, textured_frames())
-    broken = tmp_path / "corpus" / "b" / "00003.png"
+    broken = tmp_path / "corpus" / "b" / "00002.png"  # among the first three: the sequence cannot run at all
     broken.write_bytes(broken.read_bytes()[:60])  # its header reads, its pixels do not: fails while running
     listing = tmp_path / "corpus" / "list.txt"
     listing.write_text("a\nb\nc\n")
@@ -282,7 +330,7 @@ def test_a_sequence_that_fails_on_its_frames_does_not_stop_the_others(tmp_path, 
     with caplog.at_level("ERROR"), pytest.raises(SequenceFailures) as failure:
         Pipeline(spec).run()
     assert failure.value.exit_code == 2 and str(failure.value).startswith("1 of 3 sequences failed (")
-    assert "b/00003.png" in str(failure.value) and "b: failed: " in caplog.text
+    assert "b/00002.png" in str(failure.value) and "b: failed: " in caplog.text
     record = json.loads((out / "run.json").read_text())
     assert sorted(record["sequences"]) == ["a", "c"] and list(record["failed"]) == ["b"]
     assert sorted(p.name for p in out.iterdir()) == ["a", "c", "run.json"]  # nothing half-written of b
@@ -290,5 +338,5 @@ def test_a_sequence_that_fails_on_its_frames_does_not_stop_the_others(tmp_path, 
     # one sequence alone fails with its own error, as before
     alone = dataclasses.replace(spec, input=dataclasses.replace(spec.input, path=tmp_path / "corpus" / "b"),
                                 output=dataclasses.replace(spec.output, dir=tmp_path / "alone"))
-    with pytest.raises(InputError, match="00003.png"):
+    with pytest.raises(InputError, match="00002.png"):
         Pipeline(alone).run()
