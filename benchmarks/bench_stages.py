@@ -10,7 +10,8 @@ default 1), after a warm-up batch:
 - ``motion_net``: the ``epo`` preset's two U-Nets on 427x240 motion images, batches of 8, as the stage ran them
   before (each :class:`~eponet.nets.EpoUNet` in eval mode, channels-last) and as it runs them now (each as its
   :class:`~eponet.nets.InferenceUNet`), in float32 and under ``precision: bfloat16``. The motion images are
-  random: a convolution's cost does not depend on the values.
+  random: a convolution's cost does not depend on the values. Also the compute floor: both networks'
+  multiply-adds per frame at the rate this CPU multiplies large float32 matrices on the same threads.
 - ``flow``: the presets' flow (``dis``, ``medium`` with ``finest_scale: 0``) forward + backward per frame, and
   OpenCV's own ``medium`` (``finest_scale: null``, which is R's computation) through the same stage.
 - ``rigidity``: the presets' trifocal stage on the dense trajectories of the frames (DIS flow, not timed), with
@@ -76,7 +77,56 @@ def bench_motion_net(frames: int) -> dict[str, float]:
     for precision in ("float32", "bfloat16"):
         stage = EpoUNetStage(weights=weights, device="cpu", precision=precision)
         figures[f"now ({precision})"] = _timed(lambda: stage.predict(motion), frames)
+    # the compute floor: the networks' multiply-adds at the rate of a large float32 matrix product on the same
+    # threads (close to what this CPU can do at all)
+    flops = 2 * sum(multiply_adds(model, (SIZE[1], SIZE[0])) for model in stage.models)
+    rate = sgemm_flops()
+    figures[f"floor: {flops / 1e9:.2f} GFLOP per frame at the sgemm rate ({rate / 1e9:.0f} GFLOP/s)"] = flops / rate * 1000
     return figures
+
+
+def multiply_adds(model, shape: tuple[int, int]) -> int:
+    """Multiply-adds of one forward pass of ``model`` (its convolutions and linear layers) on one frame of ``shape``
+    ``(h, w)``, counted from the shapes the calls see."""
+    import torch
+    import torch.nn.functional as F
+
+    count = 0
+    conv, linear = F.conv2d, F.linear
+
+    def counted_conv(x, weight, *args, **kwargs):
+        nonlocal count
+        y = conv(x, weight, *args, **kwargs)
+        count += y.numel() * weight[0].numel()
+        return y
+
+    def counted_linear(x, weight, *args, **kwargs):
+        nonlocal count
+        y = linear(x, weight, *args, **kwargs)
+        count += y.numel() * weight.shape[1]
+        return y
+
+    F.conv2d, F.linear = counted_conv, counted_linear
+    try:
+        with torch.inference_mode():
+            model(torch.zeros(1, len(model.channels), *shape))
+    finally:
+        F.conv2d, F.linear = conv, linear
+    return count
+
+
+def sgemm_flops(n: int = 1536) -> float:
+    """Float32 FLOP/s of an ``n`` x ``n`` matrix product (best of 5) on torch's current threads."""
+    import torch
+
+    a, b = torch.randn(n, n), torch.randn(n, n)
+    torch.mm(a, b)
+    best = float("inf")
+    for _ in range(5):
+        start = time.perf_counter()
+        torch.mm(a, b)
+        best = min(best, time.perf_counter() - start)
+    return 2 * n**3 / best
 
 
 def bench_flow(frames: list[np.ndarray]) -> dict[str, float]:
