@@ -81,8 +81,9 @@ def dis_flow(gray: np.ndarray):
 
 
 def sequence_auc(name: str, variants=VARIANTS, frames: int | None = None, flow_cache: Path | None = None,
-                 seed: int = 0, root: Path = DAVIS) -> dict:
-    """Mean per-frame ROC AUC of each variant's ED for one sequence (and timings)."""
+                 seed: int = 0, root: Path = DAVIS, trajectories: dict | None = None) -> dict:
+    """Mean per-frame ROC AUC of each variant's ED for one sequence (and timings); ``trajectories``: settings of
+    the ``dense`` trajectory stage."""
     from eponet.core.types import FlowPair
     from eponet.plugins.trajectories.dense import DenseTrajectories
 
@@ -97,7 +98,7 @@ def sequence_auc(name: str, variants=VARIANTS, frames: int | None = None, flow_c
             cached.parent.mkdir(parents=True, exist_ok=True)
             np.savez(cached, forward=flow.forward, backward=flow.backward)
     t0 = time.perf_counter()
-    traj = DenseTrajectories().build(flow)
+    traj = DenseTrajectories(**(trajectories or {})).build(flow)
     out = {"frames": len(gray), "traj_s": time.perf_counter() - t0}
     for variant in variants:
         t0 = time.perf_counter()

@@ -24,7 +24,8 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-ed-video --run ed_window=null \
         --sequences bmx-bumps,car-turn,dance-jump,hockey,paragliding,stroller
         # some sequences only, with other run settings (here the whole video's ED scale)
-    python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--flow-cache DIR]
+    python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--trajectories cull_collisions=true] \
+        [--flow-cache DIR]
     python benchmarks/kfold.py --what epo --out runs/kfold-epo-parallax --preset epo-st \
         --recipe-rigidity degeneracy=parallax border_prior=0.15
         # folds trained on another ED than the recipe's (merged onto its geometry.stages.rigidity)
@@ -102,7 +103,8 @@ def _finite(value):
     return float(value) if value is not None and np.isfinite(value) else None
 
 
-def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None) -> dict[str, dict]:
+def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, trajectories: dict | None = None
+           ) -> dict[str, dict]:
     """ED ROC AUC per sequence (no training, so the folds only label the rows)."""
     import logging
 
@@ -114,7 +116,7 @@ def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None) -> d
     out = {}
     for i, names in enumerate(split):
         for name in names:
-            r = g.sequence_auc(name, ("default",), flow_cache=flow_cache)
+            r = g.sequence_auc(name, ("default",), flow_cache=flow_cache, trajectories=trajectories)
             out[name] = {"fold": i, "AUC": r["default"], "models": r["default_models"]}
             print(f"  {name:<18} AUC {r['default']:.3f} {r['default_models']}", flush=True)
     return out
@@ -142,7 +144,7 @@ def fusion_recipe_without(sequences: list[str], motion_net: Path) -> dict:
 def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: list[int], rigidity: dict,
             weights: Path | None = None, save: tuple[str, ...] = ("masks",), preset: str = "epo",
             fusion: dict | None = None, plus: bool = False, recipe_rigidity: dict | None = None,
-            run: dict | None = None, only: set[str] | None = None) -> dict[str, dict]:
+            run: dict | None = None, only: set[str] | None = None, trajectories: dict | None = None) -> dict[str, dict]:
     """Train one network per fold (``jobs`` at once, one thread each; into ``weights`` or ``out``) and score
     its held-out sequences, with the ``rigidity`` settings merged onto the preset's when given
     (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns). ``plus``: then
@@ -174,6 +176,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         stages = {"motion_net": {"plugin": "epo_unet", "weights": str(weights / f"fold{i}" / "weights.pt")}}
         if rigidity:
             stages["rigidity"] = {"plugin": "trifocal", **rigidity}
+        if trajectories:
+            stages["trajectories"] = {"plugin": "dense", **trajectories}
         if crf is not None:
             stages["refiner"] = crf
         if plus:
@@ -205,6 +209,8 @@ def main(argv=None) -> int:
                         help="epo: plugin=NAME and key=value settings of the fusion stage (e.g. plugin=selftrain weight=0.5)")
     parser.add_argument("--rigidity", nargs="*", default=[],
                         help="key=value settings of the trifocal stage (epo: merged onto the preset's when scoring)")
+    parser.add_argument("--trajectories", nargs="*", default=[],
+                        help="key=value settings of the dense trajectory stage (ed and epo), e.g. cull_collisions=true")
     parser.add_argument("--recipe-rigidity", nargs="*", default=[],
                         help="key=value merged onto the training recipe's rigidity stage (the ED the folds learn)")
     parser.add_argument("--weights", type=Path, default=None,
@@ -234,8 +240,10 @@ def main(argv=None) -> int:
     for i in which:
         print(f"fold {i}: {', '.join(split[i])}")
     rigidity = key_values(args.rigidity)
+    trajectories = key_values(args.trajectories)
     if args.what == "ed":
-        per_sequence = run_ed([split[i] if i in which else [] for i in range(len(split))], rigidity, args.flow_cache)
+        per_sequence = run_ed([split[i] if i in which else [] for i in range(len(split))], rigidity, args.flow_cache,
+                              trajectories)
         measures = ("AUC",)
         meta = {"rigidity": rigidity}
     else:
@@ -245,7 +253,8 @@ def main(argv=None) -> int:
         recipe_rigidity = key_values(args.recipe_rigidity)
         run = key_values(args.run)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
-                               tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only)
+                               tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
+                               trajectories)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -256,6 +265,8 @@ def main(argv=None) -> int:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)
             meta.update(preset=preset, fusion=fusion)
+    if trajectories:  # (kept out of the default's record: earlier reports still merge)
+        meta["trajectories"] = trajectories
     previous = out / "kfold.json"
     if previous.is_file():  # folds scored by an earlier call with the same settings are kept
         earlier = json.loads(previous.read_text())

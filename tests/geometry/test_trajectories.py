@@ -146,6 +146,34 @@ def test_cull_collisions_keeps_oldest():
     assert cull.length[cull.labels[0, 3, 5]] == f and cull.length[cull.labels[0, 3, 6]] == 1
 
 
+def test_max_live_bounds_the_trajectories_that_pile_up_ending_the_youngest_hidden_first():
+    """Column 5 moves onto column 6 in every pair: each frame hides 12 more trajectories under older ones, so
+    without a bound their number grows with the video; with ``max_live`` it stops at that many times the
+    pixels, the youngest hidden ones ending first, and no pixel changes its trajectory."""
+    h, w, f = 12, 16, 10
+    fw = np.zeros((f - 1, h, w, 2), np.float32)
+    fw[:, :, 5, 0] = 1.0
+    bw = np.zeros_like(fw)
+    bw[:, :, 6, 0] = -0.4
+    free = build_dense_trajectories(fw, bw, max_live=None)
+    bounded = build_dense_trajectories(fw, bw, max_live=1.25)
+    _check_invariants(free, h, w)
+    _check_invariants(bounded, h, w)
+
+    def alive(tr, t):
+        return set(np.flatnonzero((tr.start <= t) & (trajectory_ends(tr) >= t)).tolist())
+
+    assert [len(alive(free, t)) for t in range(f)] == [h * w + h * t for t in range(f)]
+    assert [len(alive(bounded, t)) for t in range(f)] == [192, 204, 216, 228, 240, 240, 240, 240, 240, 240]
+    np.testing.assert_array_equal(bounded.labels, free.labels)  # the same trajectory covers every pixel
+    last = f - 1
+    dropped = alive(free, last) - alive(bounded, last)
+    hidden = alive(bounded, last) - set(bounded.labels[last].ravel().tolist())
+    assert len(dropped) == 12 * 5 and min(dropped) > max(hidden)
+    with pytest.raises(ValueError, match="max_live must be at least 1"):
+        build_dense_trajectories(fw, bw, max_live=0.5)
+
+
 def test_nan_flow_is_treated_as_occlusion(caplog):
     h, w, f = 10, 12, 4
     fw, bw = _translation(f, h, w, 1.0, 0.0)
