@@ -253,9 +253,7 @@ def _decoded(source: SequenceSource, max_frames: int | None):
                 yield file.stem, None, str(exc)
                 return
             yield file.stem, image, file
-        if source.stopped:  # the header check cut the list at an unreadable file
-            yield "", None, source.stopped
-        return
+        return  # (a list cut by the header check at an unreadable file has ``source.stopped`` set already)
     capture = cv2.VideoCapture(str(source.video))
     try:
         t = 0

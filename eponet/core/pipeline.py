@@ -180,7 +180,7 @@ class Pipeline:
         writer = SequenceWriter(spec.output.dir, source.name, spec.output.save, size, shape,
                                 fps=spec.output.fps or source.fps)
         checks = SequenceChecks(source.name)
-        count, first_stem, last_stem = 0, None, None
+        count, last_stem = 0, None
         report = progress.current()
         report.start(source.name, source.count)
         try:
@@ -191,7 +191,7 @@ class Pipeline:
                 write_time += time.perf_counter() - start
                 checks.observe(item.t, item.motion_flow, item.mask)
                 count += 1
-                first_stem, last_stem = first_stem or item.stem, item.stem
+                last_stem = item.stem
                 report.advance(source.name)
             writer.close()
         except BaseException:
@@ -211,7 +211,7 @@ class Pipeline:
             "triplets": _summarise_triplets(stream.triplets),
             **checks.finish(),
             "config": self.config_digest(),
-            **({"stopped": f"{source.stopped}; the sequence ends there: its first {count} frames ({first_stem} to "
+            **({"stopped": f"{source.stopped}; the sequence ends there: its first {count} frames ({first[0]} to "
                            f"{last_stem}) were processed and their outputs kept"} if source.stopped else {}),
         }
 

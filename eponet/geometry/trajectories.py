@@ -173,14 +173,15 @@ class DenseTrajectoryStream:
         cover = np.full(hw, -1, np.int32)
         cover[pix] = kept_ids
         dup = np.bincount(pix, minlength=hw)[pix] > 1
-        if dup.any():  # the oldest (lowest id) of the trajectories on one pixel covers it
+        collided = bool(dup.any())
+        if collided:  # the oldest (lowest id) of the trajectories on one pixel covers it
             np.minimum.at(cover, pix[dup], kept_ids[dup])
             if self.cull_collisions:
                 win = cover[pix] == kept_ids
                 keep, kept_ids = keep[win], kept_ids[win]
-            elif self.max_live is not None:
-                keep, kept_ids = self._bounded(keep, kept_ids, cover, pix)
-        new_pix = np.flatnonzero(cover < 0)
+        new_pix = np.flatnonzero(cover < 0)  # (culling and the bound end only trajectories that cover nothing)
+        if collided and not self.cull_collisions and self.max_live is not None:
+            keep, kept_ids = self._bounded(keep, kept_ids, cover, pix, born=len(new_pix))
         new_ids = np.arange(self.next_id, self.next_id + len(new_pix), dtype=np.int32)
         cover[new_pix] = new_ids
         self.next_id += len(new_pix)
@@ -189,11 +190,10 @@ class DenseTrajectoryStream:
         self.t = t + 1
         return TrackFrame(t + 1, self.ids, self.pos, cover.reshape(h, w))
 
-    def _bounded(self, keep: np.ndarray, kept_ids: np.ndarray, cover: np.ndarray, pix: np.ndarray):
+    def _bounded(self, keep: np.ndarray, kept_ids: np.ndarray, cover: np.ndarray, pix: np.ndarray, *, born: int):
         """``keep`` and ``kept_ids`` less the youngest trajectories that cover no pixel (an older one covers it),
-        as many as the frame holds beyond ``max_live`` times its pixels once the uncovered pixels are born."""
+        as many as the frame holds beyond ``max_live`` times its pixels once ``born`` new ones start."""
         hw = self.h * self.w
-        born = hw - int(np.count_nonzero(cover >= 0))
         excess = len(kept_ids) + born - int(self.max_live * hw)
         if excess <= 0:
             return keep, kept_ids

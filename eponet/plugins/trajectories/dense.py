@@ -32,8 +32,6 @@ class DenseTrajectories:
                  max_live: float | None = MAX_LIVE):
         if consistency not in ("tolerance", "exact"):
             raise ValueError(f"consistency must be 'tolerance' or 'exact', got {consistency!r}")
-        if max_live is not None and not max_live >= 1:
-            raise ValueError(f"max_live must be at least 1 (times the pixel count) or None, got {max_live!r}")
         self.consistency = consistency
         self.cull_collisions = bool(cull_collisions)
         self.max_live = max_live
