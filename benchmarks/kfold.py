@@ -3,7 +3,8 @@ never saw it.
 
 Protocol: the 30 sequences of ``ImageSets/train.txt`` are split into 5 folds of 6 (:data:`FOLDS`, fixed; a
 seeded shuffle, seed 0, of the sorted names). For fold ``i`` the motion network is trained with the shipped
-recipe (``examples/train-epo.yaml``) on the other 24 sequences, and the fold's 6 sequences are run end to end
+recipe (``examples/train-epo.yaml``) on the other 24 sequences (``--seeds 0,1``: twice, with seeds 0 and 1, whose
+probabilities are averaged as the preset's pair of networks is), and the fold's 6 sequences are run end to end
 through the ``epo`` preset (its own CRF, as a user gets it; ``--refiner authors`` for the authors' CRF of the
 model cards' ablations) on 480p frames at scale 0.5 (the 240p frames upsampled, see
 :func:`epo_ablation.validation_root`) and scored at 480p with the DAVIS-2016 protocol (J, F, and T where
@@ -26,6 +27,9 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
         # some sequences only, with other run settings (here the whole video's ED scale)
     python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--trajectories cull_collisions=true] \
         [--flow-cache DIR]
+    python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-epo-pair --seeds 0,1
+        # the epo preset as it ships: the mean of two networks per fold (seeds 0 and 1; seed 1's are trained
+        # into fold<i>/seed1 of --weights)
     python benchmarks/kfold.py --what epo --out runs/kfold-epo-parallax --preset epo-st \
         --recipe-rigidity degeneracy=parallax border_prior=0.15
         # folds trained on another ED than the recipe's (merged onto its geometry.stages.rigidity)
@@ -131,11 +135,11 @@ def epo_crf() -> dict:
     return {**defaults, **registry.resolve_preset("epo")["refiner"]}
 
 
-def fusion_recipe_without(sequences: list[str], motion_net: Path) -> dict:
+def fusion_recipe_without(sequences: list[str], motion_net: list[Path]) -> dict:
     """The EpO+ fusion recipe (``examples/train-epo-plus.yaml``, absolute paths) on top of the frozen
-    ``motion_net``, trained without ``sequences`` and validated on them."""
+    ``motion_net`` networks (their mean), trained without ``sequences`` and validated on them."""
     doc = absolutise(yaml.safe_load(FUSION_RECIPE.read_text()), FUSION_RECIPE.parent)
-    doc["motion_net"]["weights"] = [str(motion_net.resolve())]
+    doc["motion_net"]["weights"] = [str(path.resolve()) for path in motion_net]
     doc["phases"][-1]["data"]["davis"]["exclude"] = list(sequences)
     doc["validation"]["davis"]["sequences"] = list(sequences)
     return doc
@@ -144,36 +148,52 @@ def fusion_recipe_without(sequences: list[str], motion_net: Path) -> dict:
 def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: list[int], rigidity: dict,
             weights: Path | None = None, save: tuple[str, ...] = ("masks",), preset: str = "epo",
             fusion: dict | None = None, plus: bool = False, recipe_rigidity: dict | None = None,
-            run: dict | None = None, only: set[str] | None = None, trajectories: dict | None = None) -> dict[str, dict]:
-    """Train one network per fold (``jobs`` at once, one thread each; into ``weights`` or ``out``) and score
-    its held-out sequences, with the ``rigidity`` settings merged onto the preset's when given
+            run: dict | None = None, only: set[str] | None = None, trajectories: dict | None = None,
+            seeds: tuple[int, ...] = (0,)) -> dict[str, dict]:
+    """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
+    ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
+    held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
     (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns). ``plus``: then
     train each fold's EpO+ fusion on that fold's frozen network (into ``out/fold<i>/fusion``) and score the
     ``epo+`` preset with both. ``run``: the spec's ``run`` settings; ``only``: score these sequences only."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
-    def recipe(i):
+    def recipe(i, seed):
         doc = recipe_without(split[i])
         doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})
+        doc["seed"] = seed
         return doc
 
-    def train(i):
-        seconds = train_variant(weights / f"fold{i}", lambda: recipe(i), threads, retrain=False)
-        if plus:
-            net = weights / f"fold{i}" / "weights.pt"
-            seconds += train_variant(out / f"fold{i}" / "fusion", lambda: fusion_recipe_without(split[i], net),
-                                     threads, retrain=False)
-        return seconds
+    def folder(i, seed):
+        return weights / f"fold{i}" / ("" if seed == seeds[0] else f"seed{seed}")
 
-    with ThreadPoolExecutor(jobs) as pool:
-        seconds = dict(zip(which, pool.map(train, which)))
+    def nets(i):
+        return [folder(i, seed) / "weights.pt" for seed in seeds]
+
+    def train(job):
+        i, seed = job
+        return train_variant(folder(i, seed), lambda: recipe(i, seed), threads, retrain=False)
+
+    def train_fusion(i):
+        return train_variant(out / f"fold{i}" / "fusion", lambda: fusion_recipe_without(split[i], nets(i)),
+                             threads, retrain=False)
+
+    seconds = dict.fromkeys(which, 0.0)
+    trainings = [(i, seed) for seed in seeds for i in which]
+    with ThreadPoolExecutor(jobs) as pool:  # every network first, then the fusions that read them
+        for (i, _), s in zip(trainings, pool.map(train, trainings)):
+            seconds[i] += s
+        if plus:
+            for i, s in zip(which, pool.map(train_fusion, which)):
+                seconds[i] += s
     scored = {i: [n for n in split[i] if not only or n in only] for i in which}
     davis = validation_root(DAVIS, [n for i in which for n in scored[i]], out)
     crf = {"authors": authors_crf, "epo": epo_crf}.get(refiner, lambda: None)()
     per_sequence = {}
     for i in which:
-        stages = {"motion_net": {"plugin": "epo_unet", "weights": str(weights / f"fold{i}" / "weights.pt")}}
+        paths = [str(path) for path in nets(i)]
+        stages = {"motion_net": {"plugin": "epo_unet", "weights": paths if len(paths) > 1 else paths[0]}}
         if rigidity:
             stages["rigidity"] = {"plugin": "trifocal", **rigidity}
         if trajectories:
@@ -213,6 +233,9 @@ def main(argv=None) -> int:
                         help="key=value settings of the dense trajectory stage (ed and epo), e.g. cull_collisions=true")
     parser.add_argument("--recipe-rigidity", nargs="*", default=[],
                         help="key=value merged onto the training recipe's rigidity stage (the ED the folds learn)")
+    parser.add_argument("--seeds", default="0",
+                        help="epo: comma-separated training seeds; the held-out sequences run the mean of the seeds' "
+                        "networks (0,1: the epo preset's pair; the first seed's are fold<i>/weights.pt)")
     parser.add_argument("--weights", type=Path, default=None,
                         help="epo: folder of already trained fold<i>/weights.pt to score (default: --out)")
     parser.add_argument("--run", nargs="*", default=[],
@@ -252,15 +275,18 @@ def main(argv=None) -> int:
         preset = "epo+" if plus else args.preset
         recipe_rigidity = key_values(args.recipe_rigidity)
         run = key_values(args.run)
+        seeds = tuple(int(s) for s in args.seeds.split(","))
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
-                               trajectories)
+                               trajectories, seeds)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
             meta["recipe_rigidity"] = recipe_rigidity
         if run:
             meta["run"] = run
+        if seeds != (0,):  # (kept out of the default's record: earlier reports still merge)
+            meta["seeds"] = list(seeds)
         if plus:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)

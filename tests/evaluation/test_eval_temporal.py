@@ -7,15 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from eponet.evaluation.metrics import (
-    chi2_cost,
-    contour_upsample,
-    db_eval_t,
-    longest_contour,
-    mask_contours,
-    match_contours,
-    shape_context,
-)
+from eponet.evaluation import metrics
+from eponet.evaluation.contours import contour_upsample, longest_contour, mask_contours
+from eponet.evaluation.temporal import chi2_cost, db_eval_t, match_contours, shape_context
 
 
 def ellipse(shape, centre, axes, angle=0.0):
@@ -184,3 +178,9 @@ def test_t_is_nan_without_contour():
     dot = np.zeros(SHAPE, bool)
     dot[5, 5] = True
     assert math.isnan(db_eval_t(dot, m))
+
+
+def test_metrics_re_exports_temporal_stability():
+    """``eponet.evaluation.metrics`` keeps every measure's name: T's functions are the temporal module's."""
+    assert metrics.db_eval_t is db_eval_t and metrics.mask_contours is mask_contours
+    assert set(metrics.__all__) >= {"db_eval_t", "T_SCALE", "shape_context", "match_contours"}
