@@ -18,7 +18,8 @@ default 1), after a warm-up batch:
   numpy's BLAS on one thread, as runs hold it, and on every core (``--stages rigidity``, not in the default set).
 - ``refiner``: the ``epo`` preset's dense CRF (854x480 frames and probabilities, run at 427 px wide) on real
   frames, split into its parts (resizing and unary, the Gaussian and bilateral kernels' set-up, the five
-  mean-field iterations), and ``densecrf_mask`` as the stage calls it.
+  mean-field iterations: pydensecrf's), and ``densecrf_mask`` as the stage calls it, with the preset's backend
+  (``grid``) and with the other.
 """
 
 from __future__ import annotations
@@ -203,8 +204,12 @@ def bench_refiner(frames: list[np.ndarray]) -> dict[str, float]:
         for name, a, b in zip(parts, [tick, *marks[:-1]], marks):
             parts[name] += (b - a) * 1000 / len(frames)
     figures = {f"  {name}": value for name, value in parts.items()}
-    figures["densecrf_mask (the stage, preset epo)"] = _timed(
+    figures[f"densecrf_mask (the stage, preset epo: backend {params['backend']})"] = _timed(
         lambda: [densecrf_mask(f, probability, **params) for f in frames], len(frames), repeats=1)
+    other = "pydensecrf" if params["backend"] == "grid" else "grid"
+    figures[f"densecrf_mask, backend {other}"] = _timed(
+        lambda: [densecrf_mask(f, probability, **{**params, "backend": other}) for f in frames], len(frames),
+        repeats=1)
     return figures
 
 

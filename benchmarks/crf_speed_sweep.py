@@ -14,7 +14,8 @@ other 24 sequences is at most ``--tolerance`` (0.002) below the preset's there (
 with the best mean J there); that fold's six sequences are then reported with the setting chosen for them.
 
 ``--preset epo+`` starts from that preset's CRF instead (on an ``--what epo+`` k-fold's saliency, the fused
-maps), and ``--grid weights`` tries the bilateral kernel's colour width and weight instead of the cheaper sizes.
+maps), ``--grid weights`` tries the bilateral kernel's colour width and weight instead of the cheaper sizes, and
+``--grid backend`` the bilateral-grid CRF (``backend: grid``) with several cell sizes.
 
     python benchmarks/crf_speed_sweep.py --dump runs/kfold-epo-dump [--every 4] [--jobs 2]
     python benchmarks/crf_speed_sweep.py --dump runs/kfold-epo-plus --preset epo+ --grid weights --choose best
@@ -49,6 +50,11 @@ WEIGHTS_GRID = [("preset", {}),
                 ("srgb 10, compat 8", {"bilateral_srgb": 10.0, "bilateral_compat": 8.0}),
                 ("srgb 15, compat 5", {"bilateral_srgb": 15.0, "bilateral_compat": 5.0}),
                 ("srgb 10, compat 3", {"bilateral_srgb": 10.0, "bilateral_compat": 3.0})]
+
+#: ``--grid backend``: the same CRF with its bilateral kernel on a bilateral grid (numpy), cells of 1 to 2 kernel
+#: standard deviations (a larger cell is a coarser, cheaper and wider kernel), against the preset's pydensecrf.
+BACKEND_GRID = [("preset (pydensecrf)", {})] + [
+    (f"grid, cell {cell}", {"backend": "grid", "grid_cell": cell}) for cell in (1.0, 1.25, 1.5, 2.0)]
 
 
 def _preset(name: str = "epo") -> dict:
@@ -96,11 +102,11 @@ def main() -> int:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--tolerance", type=float, default=0.002)
     parser.add_argument("--preset", default="epo", help="the preset whose CRF is the first setting (epo, epo+)")
-    parser.add_argument("--grid", choices=("speed", "weights"), default="speed")
+    parser.add_argument("--grid", choices=("speed", "weights", "backend"), default="speed")
     parser.add_argument("--choose", choices=("cheapest", "best"), default="cheapest",
                         help="per fold: the cheapest setting within --tolerance of the preset's J, or the best J")
     args = parser.parse_args()
-    grid = GRID if args.grid == "speed" else WEIGHTS_GRID
+    grid = {"speed": GRID, "weights": WEIGHTS_GRID, "backend": BACKEND_GRID}[args.grid]
     record = json.loads((args.dump / "kfold.json").read_text())
     root = args.dump / "davis-480p-from-240p"
     folds = record["folds"]
