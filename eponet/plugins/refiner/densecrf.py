@@ -210,6 +210,7 @@ class DenseCrfRefiner:
     threads, a CRF in this process would stall the flow and geometry threads for its whole duration. With
     ``helper_process`` (the default) the CRF itself runs in one helper process (started on first use, shared by
     every refiner of this process); the resizing and cropping stay here, and the masks are the same bit for bit.
+    ``backend: grid`` (:mod:`eponet.plugins.refiner.gridcrf`) runs in this process: numpy, no helper.
     """
 
     def __init__(self, *, helper_process: bool = True, backend: str = "pydensecrf", grid_cell: float = CELL, **params):
@@ -269,6 +270,6 @@ def eponet_stages():
                 Param("crop_margin", "float", None, "run only on the box around the pixels above 0.5, grown by this "
                       "many bilateral widths (background outside; null = the whole frame)", minimum=0.0, nullable=True),
             ),
-            doc="dense CRF (pydensecrf) with the EpO-Net defaults",
+            doc="dense CRF with the EpO-Net defaults (pydensecrf's lattice, or a numpy bilateral grid: backend)",
         )
     ]
