@@ -40,6 +40,10 @@ class _BilateralGrid:
         coords = [xx / (sxy * cell), yy / (sxy * cell)] + [frame[..., c] / (srgb * cell) for c in range(3)]
         cells = [np.floor(c).astype(np.int64).reshape(-1) + 1 for c in coords]  # >= 1: room for the -1 neighbour
         extent = [int(c.max()) + 2 for c in cells]
+        if np.prod(np.array(extent, float)) >= 2.0 ** 62:  # one int64 key per cell would overflow
+            raise ValueError(f"densecrf backend grid: a {' x '.join(map(str, extent))} grid has too many cells to "
+                             f"index (bilateral_sxy {sxy}, bilateral_srgb {srgb}, grid_cell {cell}); use wider "
+                             "kernels, a larger grid_cell or backend pydensecrf")
         strides = np.cumprod([1] + extent[:-1])
         keys = sum(c * s for c, s in zip(cells, strides))
         self.keys, self.cell_of = np.unique(keys, return_inverse=True)

@@ -77,3 +77,9 @@ def test_grid_refiner_runs_in_process_with_crop_and_cap():
     assert masks.shape == (2,) + truth.shape
     assert _iou(masks[0], truth) > 0.88
     assert masks[1].sum() == 0
+
+
+def test_a_grid_too_fine_to_index_is_a_clear_error():
+    frame = np.random.default_rng(0).integers(0, 255, (200, 300, 3)).astype(np.float32)
+    with pytest.raises(ValueError, match="too many cells"):
+        _BilateralGrid(frame, 0.01, 0.01, 0.25)
