@@ -52,8 +52,8 @@ WEIGHTS_GRID = [("preset", {}),
                 ("srgb 10, compat 3", {"bilateral_srgb": 10.0, "bilateral_compat": 3.0})]
 
 #: ``--grid backend``: the same CRF with its bilateral kernel on a bilateral grid (numpy), cells of 1 to 2 kernel
-#: standard deviations (a larger cell is a coarser, cheaper and wider kernel), against the preset's pydensecrf.
-BACKEND_GRID = [("preset (pydensecrf)", {})] + [
+#: standard deviations (a larger cell is a coarser, cheaper and wider kernel), against pydensecrf's lattice.
+BACKEND_GRID = [("preset", {}), ("pydensecrf", {"backend": "pydensecrf"})] + [
     (f"grid, cell {cell}", {"backend": "grid", "grid_cell": cell}) for cell in (1.0, 1.25, 1.5, 2.0)]
 
 
