@@ -69,14 +69,19 @@ def densecrf_mask(
                    gaussian_compat=gaussian_compat, bilateral_sxy=bilateral_sxy, bilateral_srgb=bilateral_srgb,
                    bilateral_compat=bilateral_compat, normalise=normalise, scale=scale, max_size=max_size,
                    crop_margin=crop_margin)
-    if not job.args:
-        return _crf_mask(job, None)
-    return _crf_mask(job, _crf_margin(*job.args) if backend == "pydensecrf" else grid_crf_margin(*job.args, grid_cell))
+    return _crf_mask(job, _margin_here(job, backend, grid_cell))
 
 
 #: densecrf_mask's keyword arguments and their defaults (those of the CRF's preparation, :func:`_crf_job`)
 _DEFAULTS = {name: parameter.default for name, parameter in inspect.signature(densecrf_mask).parameters.items()
              if parameter.kind is inspect.Parameter.KEYWORD_ONLY and name not in ("backend", "grid_cell")}
+
+
+def _margin_here(job: "_CrfJob", backend: str, grid_cell: float) -> np.ndarray | None:
+    """The CRF's margin on the job's box, computed in this process by ``backend`` (None: nothing to refine)."""
+    if not job.args:
+        return None
+    return _crf_margin(*job.args) if backend == "pydensecrf" else grid_crf_margin(*job.args, grid_cell)
 
 
 @dataclass
@@ -227,10 +232,7 @@ class DenseCrfRefiner:
 
     def _margins(self, jobs: list[_CrfJob]) -> list[np.ndarray | None]:
         desc = "refiner (densecrf)"
-        if self.backend == "grid":  # numpy, in this process: no helper needed
-            return [grid_crf_margin(*job.args, self.grid_cell) if job.args else None
-                    for job in track(jobs, desc=desc, total=len(jobs))]
-        if self.helper_process:
+        if self.helper_process and self.backend == "pydensecrf":  # (the grid is numpy: no GIL held for long)
             try:
                 helper = _helper()
                 return [helper.margin(job.args) if job.args else None for job in track(jobs, desc=desc, total=len(jobs))]
@@ -238,7 +240,7 @@ class DenseCrfRefiner:
                 _forget_helper()
                 log.warning("densecrf: no helper process (%s); the CRF runs in this process", exc)
                 self.helper_process = False
-        return [_crf_margin(*job.args) if job.args else None for job in track(jobs, desc=desc, total=len(jobs))]
+        return [_margin_here(job, self.backend, self.grid_cell) for job in track(jobs, desc=desc, total=len(jobs))]
 
 
 @hookimpl
