@@ -1,7 +1,7 @@
 """Throughput and memory of ``python -m eponet.run`` as a user runs it (start-up and model loading included),
 against the machine's reference: OpenCV DIS ``medium`` forward+backward on the same frames at the processing size.
 
-    python benchmarks/bench_run.py [--preset epo] [--frames 40] [--workers auto,1] [--lengths 300,1000]
+    python benchmarks/bench_run.py [--preset epo] [--frames 40] [--workers auto,1] [--lengths 300,1000] [--device cuda]
 
 Multi-sequence run: the first ``--sequences`` DAVIS-2016 train sequences (sorted names) under ``--root``
 (``../shared/data/davis2016-train/DAVIS``) as 854x480 frames (the shared data has 480p frames of three
@@ -12,7 +12,8 @@ setting: frames/s, CPU % of one core (user + system time of the run's processes 
 the largest process and the share of each stage (from ``run.json``). Each figure is also given in reference
 units: ``R`` = milliseconds per frame of DIS medium forward+backward, measured in the same invocation on the
 same frames, single-threaded and with OpenCV's threads, so that figures from different days and machines
-compare as ratios (cost = wall ms per frame / R).
+compare as ratios (cost = wall ms per frame / R). ``--device`` sets the ``device`` of every stage of the preset that
+has one (the networks; the presets' ``auto`` takes a GPU when torch finds one); the first line names the GPU.
 
 ``--lengths``: one long video per length, a DAVIS sequence played forwards and backwards (a folder of symbolic
 links to the frames, nothing copied) through the same command: frames/s and peak RSS against length;
@@ -117,6 +118,25 @@ def long_video(folder: Path, files: list[Path], length: int) -> Path:
     return folder
 
 
+def device_stages(preset: str) -> list[str]:
+    """The stage kinds of ``preset`` whose plugin has a ``device`` parameter (the networks)."""
+    from eponet.core.registry import get_registry
+
+    registry = get_registry()
+    stages = registry.resolve_preset(preset)
+    return [kind for kind, stage in stages.items() if isinstance(stage, dict) and "plugin" in stage
+            and any(p.name == "device" for p in registry.get(kind, stage["plugin"]).params)]
+
+
+def accelerator() -> str:
+    """The GPU that ``device: auto`` finds, in words, or ``none``."""
+    import torch
+
+    if not torch.cuda.is_available():
+        return "none"
+    return f"{torch.cuda.get_device_name(0)} (torch {torch.__version__})"
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="epo")
@@ -131,6 +151,9 @@ def main() -> int:
     parser.add_argument("--rss-curve", type=int, default=0, metavar="FRAMES",
                         help="with --lengths: the run process's peak RSS per this many frames written (sampled every s)")
     parser.add_argument("--scale", type=float, default=0.5)
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default=None,
+                        help="device of every stage of the preset that has one (the networks; default: the "
+                        "preset's, auto)")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         help="extra spec values KEY.PATH=VALUE (YAML), e.g. run.chunk=32")
     args = parser.parse_args()
@@ -138,6 +161,9 @@ def main() -> int:
     import yaml
 
     from epo_ablation import validation_root
+
+    if args.device:
+        args.overrides[:0] = [f"stages.{kind}.device={args.device}" for kind in device_stages(args.preset)]
 
     sequences = sorted(p.name for p in (args.root / "JPEGImages" / "240p").iterdir() if p.is_dir())[: args.sequences]
     root = validation_root(args.root, sequences, ROOT / "runs")
@@ -149,7 +175,7 @@ def main() -> int:
     h, w = cv2.imread(str(all_files[0])).shape[:2]
     print(f"reference R: DIS medium forward+backward at {int(round(w * args.scale))}x{int(round(h * args.scale))}: "
           f"{r1:.1f} ms/frame on one thread, {rn:.1f} ms/frame with {cv2.getNumThreads()} OpenCV threads "
-          f"({os.cpu_count()} cores)")
+          f"({os.cpu_count()} cores); GPU: {accelerator()}")
 
     def spec_for(path: Path, out: Path, workers, max_frames=None) -> dict:
         save = ["ed"] if args.preset == "geometry" else ["masks"]  # the geometry preset has no refiner

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 import tempfile
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 
-import av
 import cv2
 import numpy as np
 
@@ -69,7 +69,7 @@ class SequenceWriter:
             if is_no_space(exc):
                 raise no_space_error(self.out_dir, f"starting {name}") from None
             raise OutputError(f"output.dir: cannot write to {self.out_dir} ({exc.strerror or exc})") from None
-        self._overlay = None  # (container, stream) of PyAV
+        self._overlay = None  # PyAV's (container, stream, VideoFrame), from the first overlay frame
         self._overlay_tmp = None
         self._previous = None  # the frame before, for the last frame's flow files (none: F-1 pairs)
 
@@ -92,7 +92,7 @@ class SequenceWriter:
                 _write_png(folder / "panels" / f"{stem}.png", panel(item, factor=self.factor), rgb=True)
             if "overlay" in save:
                 self._write_overlay_frame(item)
-        except (OSError, av.FFmpegError, OutputError) as exc:
+        except (OSError, OutputError, *_ffmpeg_errors()) as exc:
             if is_no_space(exc):
                 raise no_space_error(self.out_dir, f"writing {self.name} frame {stem}") from None
             if isinstance(exc, OutputError):
@@ -102,18 +102,20 @@ class SequenceWriter:
     def _write_overlay_frame(self, item) -> None:
         frame = even_size(overlay_mask(item.full if item.full is not None else item.frame, item.mask))
         if self._overlay is None:
+            import av  # PyAV (FFmpeg) only for the overlay video: ~70 ms of start-up that other runs skip
+
             self._overlay_tmp = self.folder / ".overlay.tmp.mp4"
             container = av.open(str(self._overlay_tmp), "w")
             # the rate as a fraction: NTSC's 29.97 is 30000/1001
             stream = container.add_stream("libx264", rate=Fraction(self.fps).limit_denominator(1001))
             stream.height, stream.width = frame.shape[:2]
             stream.pix_fmt = "yuv420p"
-            self._overlay = (container, stream)
-        container, stream = self._overlay
-        container.mux(stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")))
+            self._overlay = (container, stream, av.VideoFrame)
+        container, stream, video_frame = self._overlay
+        container.mux(stream.encode(video_frame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")))
 
     def _close_overlay(self, finish: bool) -> None:
-        container, stream = self._overlay
+        container, stream, _ = self._overlay
         self._overlay = None
         try:
             if finish:
@@ -131,7 +133,7 @@ class SequenceWriter:
             if final.exists():
                 shutil.rmtree(final)
             self.folder.rename(final)
-        except (OSError, av.FFmpegError) as exc:
+        except (OSError, *_ffmpeg_errors()) as exc:
             self.abort()
             if is_no_space(exc):
                 raise no_space_error(self.out_dir, f"finishing {self.name}") from None
@@ -142,9 +144,14 @@ class SequenceWriter:
         if self._overlay is not None:
             try:
                 self._close_overlay(finish=False)
-            except (OSError, av.FFmpegError):
+            except (OSError, *_ffmpeg_errors()):
                 pass  # the folder goes anyway
         shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def _ffmpeg_errors() -> tuple[type[Exception], ...]:
+    """PyAV's error class once the overlay writer has imported it (none can be raised before)."""
+    return (sys.modules["av"].FFmpegError,) if "av" in sys.modules else ()
 
 
 def ed_at_input_size(ed: np.ndarray, size: tuple[int, int]) -> np.ndarray:

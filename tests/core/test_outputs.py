@@ -10,7 +10,7 @@ import av
 import numpy as np
 import pytest
 
-from eponet.core.errors import SpecError
+from eponet.core.errors import OutputError, SpecError
 from eponet.core.outputs import ED_PANEL_FLOOR_PX, OVERLAY_FPS, PANEL_HEIGHT, TITLE_HEIGHT, SequenceWriter, panel
 from eponet.core.pipeline import Pipeline
 from eponet.core.spec import parse_spec
@@ -54,6 +54,23 @@ def test_a_10_fps_video_gives_a_10_fps_h264_overlay(tmp_path):
     assert (codec, pix_fmt, fps, len(decoded)) == ("h264", "yuv420p", 10.0, 5)
     assert decoded[0].shape == (48, 64, 3)
     assert not (tmp_path / "out" / "clip" / ".overlay.tmp.mp4").exists()
+
+
+def test_pyav_is_imported_only_for_an_overlay(tmp_path, monkeypatch):
+    """A run without overlay.mp4 does not load FFmpeg (~70 ms of start-up); a failing encoder is still one line."""
+    code = "import sys, eponet.run, eponet.core.outputs; print('av' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "False"
+    frames = textured_frames(count=3, size=(48, 64))
+
+    def broken(*args, **kwargs):
+        raise av.FFmpegError(28, "No space left on device")
+
+    monkeypatch.setattr(av, "open", broken)
+    writer = SequenceWriter(tmp_path / "out", "clip", ("overlay",), (48, 64), (48, 64), fps=10.0)
+    with pytest.raises(OutputError, match="no space left on the output disk \\(writing clip frame 00000\\)"):
+        writer.write(_item(0, frames[0], np.zeros((48, 64), bool)))
+    writer.abort()
+    assert list((tmp_path / "out").iterdir()) == []
 
 
 def _item(t, frame, mask):
