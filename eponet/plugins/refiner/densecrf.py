@@ -148,10 +148,11 @@ def _crf_margin(frame: np.ndarray, p: np.ndarray, iterations: int, gaussian_sxy:
     height, width = p.shape
     crf = dcrf.DenseCRF2D(width, height, 2)
     crf.setUnaryEnergy(np.ascontiguousarray(unary_from_softmax(np.stack([1.0 - p, p]))))
-    crf.addPairwiseGaussian(sxy=gaussian_sxy, compat=gaussian_compat, kernel=dcrf.DIAG_KERNEL,
-                            normalization=dcrf.NORMALIZE_SYMMETRIC)
+    # kernel and normalisation: pydensecrf's defaults, DIAG_KERNEL and NORMALIZE_SYMMETRIC (the authors'). They are
+    # not named here: built with Cython 3 (not the 0.29 that pydensecrf2 pins), its enums leave the module's namespace
+    crf.addPairwiseGaussian(sxy=gaussian_sxy, compat=gaussian_compat)
     crf.addPairwiseBilateral(sxy=bilateral_sxy, srgb=bilateral_srgb, rgbim=np.ascontiguousarray(frame, dtype=np.uint8),
-                             compat=bilateral_compat, kernel=dcrf.DIAG_KERNEL, normalization=dcrf.NORMALIZE_SYMMETRIC)
+                             compat=bilateral_compat)
     q = np.asarray(crf.inference(iterations)).reshape(2, height, width)
     return q[1] - q[0]
 
