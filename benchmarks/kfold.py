@@ -33,6 +33,9 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo --out runs/kfold-epo-parallax --preset epo-st \
         --recipe-rigidity degeneracy=parallax border_prior=0.15
         # folds trained on another ED than the recipe's (merged onto its geometry.stages.rigidity)
+    python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus-pair-grid --seeds 0,1 \
+        --crf backend=grid grid_cell=1.0
+        # settings merged onto the refiner (the fold folders' fusion/ linked to an earlier run's: nothing retrained)
 
 Trained folds (``weights.pt`` present) are reused; ``<out>/kfold.json`` holds every figure, and a later call
 with other ``--folds`` and the same settings adds its folds to it.
@@ -149,13 +152,14 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             weights: Path | None = None, save: tuple[str, ...] = ("masks",), preset: str = "epo",
             fusion: dict | None = None, plus: bool = False, recipe_rigidity: dict | None = None,
             run: dict | None = None, only: set[str] | None = None, trajectories: dict | None = None,
-            seeds: tuple[int, ...] = (0,)) -> dict[str, dict]:
+            seeds: tuple[int, ...] = (0,), crf_settings: dict | None = None) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
     (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns). ``plus``: then
     train each fold's EpO+ fusion on that fold's frozen network (into ``out/fold<i>/fusion``) and score the
-    ``epo+`` preset with both. ``run``: the spec's ``run`` settings; ``only``: score these sequences only."""
+    ``epo+`` preset with both. ``run``: the spec's ``run`` settings; ``only``: score these sequences only;
+    ``crf_settings``: merged onto the refiner (the preset's, or the one ``refiner`` names)."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
@@ -190,6 +194,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     scored = {i: [n for n in split[i] if not only or n in only] for i in which}
     davis = validation_root(DAVIS, [n for i in which for n in scored[i]], out)
     crf = {"authors": authors_crf, "epo": epo_crf}.get(refiner, lambda: None)()
+    if crf_settings:  # (a spec's refiner merges onto its preset's)
+        crf = {"plugin": "densecrf", **(crf or {}), **crf_settings}
     per_sequence = {}
     for i in which:
         paths = [str(path) for path in nets(i)]
@@ -223,6 +229,8 @@ def main(argv=None) -> int:
     parser.add_argument("--folds", default=None, help="comma-separated fold indices (default: all)")
     parser.add_argument("--refiner", choices=("preset", "authors", "epo"), default="preset",
                         help="the preset's CRF, the authors' (the plugin's defaults at 427 px) or the epo preset's")
+    parser.add_argument("--crf", nargs="*", default=[],
+                        help="epo: key=value settings merged onto that refiner, e.g. backend=grid grid_cell=1.0")
     parser.add_argument("--preset", default="epo", help="epo: the preset the held-out sequences run through (its "
                         "motion network replaced by the fold's), e.g. epo-st")
     parser.add_argument("--fusion", nargs="*", default=[],
@@ -278,13 +286,15 @@ def main(argv=None) -> int:
         seeds = tuple(int(s) for s in args.seeds.split(","))
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
-                               trajectories, seeds)
+                               trajectories, seeds, key_values(args.crf))
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
             meta["recipe_rigidity"] = recipe_rigidity
         if run:
             meta["run"] = run
+        if args.crf:  # (kept out of the default's record: earlier reports still merge)
+            meta["crf"] = key_values(args.crf)
         if seeds != (0,):  # (kept out of the default's record: earlier reports still merge)
             meta["seeds"] = list(seeds)
         if plus:
