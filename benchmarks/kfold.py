@@ -284,17 +284,18 @@ def main(argv=None) -> int:
         recipe_rigidity = key_values(args.recipe_rigidity)
         run = key_values(args.run)
         seeds = tuple(int(s) for s in args.seeds.split(","))
+        crf = key_values(args.crf)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
-                               trajectories, seeds, key_values(args.crf))
+                               trajectories, seeds, crf)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
             meta["recipe_rigidity"] = recipe_rigidity
         if run:
             meta["run"] = run
-        if args.crf:  # (kept out of the default's record: earlier reports still merge)
-            meta["crf"] = key_values(args.crf)
+        if crf:  # (kept out of the default's record: earlier reports still merge)
+            meta["crf"] = crf
         if seeds != (0,):  # (kept out of the default's record: earlier reports still merge)
             meta["seeds"] = list(seeds)
         if plus:
