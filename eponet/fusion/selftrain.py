@@ -34,7 +34,7 @@ def fit_appearance(features: np.ndarray, labels: np.ndarray, *, l2: float = 1e-3
     import torch
 
     frames, channels, h, w = features.shape
-    x = np.ascontiguousarray(features.transpose(0, 2, 3, 1).reshape(-1, channels), np.float32)
+    x = np.asarray(features, np.float32).reshape(frames, channels, h * w)  # a view: no per-cell copy
     y = labels.reshape(-1)
     positive, negative = np.flatnonzero(y == 1), np.flatnonzero(y == 0)
     if min(len(positive), len(negative)) < MIN_SAMPLES:
@@ -43,9 +43,11 @@ def fit_appearance(features: np.ndarray, labels: np.ndarray, *, l2: float = 1e-3
     half = max(1, samples // 2)
     positive = np.sort(rng.choice(positive, min(half, len(positive)), replace=False))
     negative = np.sort(rng.choice(negative, min(half, len(negative)), replace=False))
-    mean, std = x.mean(0), x.std(0) + 1e-6
-    x = (x - mean) / std
-    train = torch.from_numpy(x[np.concatenate([positive, negative])])
+    mean = x.mean(axis=(0, 2))
+    std = np.sqrt(np.maximum((x * x).mean(axis=(0, 2)) - mean * mean, 0.0)) + 1e-6
+    cells = np.concatenate([positive, negative])
+    rows = x[cells // (h * w), :, cells % (h * w)]  # (n, C): only the training cells are gathered
+    train = torch.from_numpy(((rows - mean) / std).astype(np.float32))
     target = torch.from_numpy(np.r_[np.ones(len(positive)), np.zeros(len(negative))].astype(np.float32))
     balance = torch.from_numpy(np.r_[np.full(len(positive), 0.5 / len(positive)),
                                      np.full(len(negative), 0.5 / len(negative))].astype(np.float32))
@@ -62,8 +64,11 @@ def fit_appearance(features: np.ndarray, labels: np.ndarray, *, l2: float = 1e-3
         return loss
 
     optimiser.step(closure)
-    with torch.no_grad():
-        probability = torch.sigmoid(torch.from_numpy(x) @ weights + bias).numpy()
+    # the standardisation folded into the weights: w . (x - mean) / std + b = (w / std) . x + b - w . mean / std
+    w_raw = weights.detach().numpy() / std
+    b_raw = float(bias.detach()[0]) - float(w_raw @ mean)
+    logits = np.matmul(w_raw.astype(np.float32)[None, None, :], x)[:, 0] + np.float32(b_raw)  # (F, h * w)
+    probability = 1.0 / (1.0 + np.exp(-np.clip(logits, -60.0, 60.0)))
     return probability.reshape(frames, h, w).astype(np.float32)
 
 

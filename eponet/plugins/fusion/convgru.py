@@ -39,13 +39,21 @@ def load_fusion(weights: str, sha256: str | None = None):
 
 class ConvGRUStage:
     """Whole-video fusion, in overlapping windows of ``window`` frames (see :func:`eponet.fusion.video_logits`
-    for the memory bound), stitched by ``blend``; logits are bilinearly upsampled to the saliency's size."""
+    for the memory bound), stitched by ``blend``; logits are bilinearly upsampled to the saliency's size.
+
+    ``selftrain > 0`` then self-trains, per window, an appearance classifier on the fused map's confident pixels
+    (above ``selftrain_foreground``, below ``selftrain_background``) and mixes its probability in with that
+    share (:func:`eponet.fusion.selftrain.self_trained_probability`): the ``selftrain`` fusion's test-time
+    adaptation, seeded by the fusion instead of the motion map."""
 
     def __init__(self, *, weights: str = "epo-plus-davis", sha256: str | None = None, window: int | None = 32,
-                 overlap: int = 8, blend: str = "centre", device: str = "auto"):
+                 overlap: int = 8, blend: str = "centre", device: str = "auto", selftrain: float = 0.0,
+                 selftrain_foreground: float = 0.9, selftrain_background: float = 0.05, selftrain_samples: int = 60000):
         self.model, self.sha256 = load_fusion(weights, sha256)
         self.window, self.overlap, self.blend = window, overlap, blend
         self.device = torch_device(device)
+        self.selftrain = dict(weight=selftrain, foreground=selftrain_foreground, background=selftrain_background,
+                              samples=selftrain_samples)
 
     def fuse(self, features: np.ndarray, saliency: np.ndarray) -> np.ndarray:
         """Foreground probability float32 ``(F, H, W)`` from features ``(F, C, h, w)`` and saliency ``(F, H, W)``."""
@@ -66,6 +74,10 @@ class ConvGRUStage:
                 maps = torch.from_numpy(np.ascontiguousarray(saliency[start : start + 16], np.float32)).to(self.device)
                 chunk = model.frame_logits(logits[start : start + 16].to(self.device), maps)
                 out[start : start + len(chunk)] = torch.sigmoid(chunk).cpu().numpy()
+        if self.selftrain["weight"] > 0:
+            from eponet.fusion.selftrain import self_trained_probability
+
+            out = self_trained_probability(features, out, **self.selftrain)
         return out
 
 
@@ -76,6 +88,9 @@ def _check(params: dict) -> list[str]:
     except MissingWeights as exc:
         problems.append(exc.problem)
     problems += window_problems(params)
+    if params["selftrain_background"] >= params["selftrain_foreground"]:
+        problems.append(f"selftrain_background: expected a threshold below selftrain_foreground "
+                        f"({params['selftrain_foreground']}), got {params['selftrain_background']}")
     return problems
 
 
@@ -97,6 +112,15 @@ def eponet_stages():
                       "is most central (the more accurate: cold-started window edges are never used), linear = "
                       "cross-fade of the logits", choices=("centre", "linear")),
                 Param("device", "choice", "auto", "where to run: auto = GPU when available", choices=DEVICES),
+                Param("selftrain", "float", 0.0, "share of a per-window appearance classifier self-trained on the "
+                      "fused map's confident pixels (0 = the fusion alone; see the selftrain fusion)",
+                      minimum=0.0, maximum=1.0),
+                Param("selftrain_foreground", "float", 0.9, "fused probability above which a pixel is a "
+                      "foreground example for selftrain", minimum=0.0, maximum=1.0),
+                Param("selftrain_background", "float", 0.05, "fused probability below which a pixel is a "
+                      "background example for selftrain", minimum=0.0, maximum=1.0),
+                Param("selftrain_samples", "int", 60000, "at most this many training cells per window for "
+                      "selftrain (half per class); its cost grows with them", minimum=2),
             ),
             doc="EpO+ fusion: bottleneck appearance features + motion map through a bidirectional ConvGRU",
             check=_check,

@@ -160,6 +160,38 @@ def test_stage_fuses_at_the_saliency_size_and_checks_channels(tmp_path):
     np.testing.assert_allclose(loaded.fuse(features[0].numpy(), saliency[0].numpy()), expected.numpy(), atol=1e-5)
 
 
+def test_selftrain_mixes_an_appearance_classifier_fitted_on_the_fused_map(tmp_path):
+    """``selftrain`` self-trains on the fusion's own confident pixels: where the fused map marks the object and a
+    distractor of background appearance, the object is kept and the distractor mostly dropped."""
+    from eponet.fusion.selftrain import self_trained_probability
+
+    _save_weights(tmp_path / "fusion.pt", _model(motion_residual=True))  # fresh: fuses to the motion map itself
+    rng = np.random.default_rng(0)
+    features = rng.normal(size=(4, 6, 12, 16)).astype(np.float32)
+    features[:, :2, 3:9, 4:10] += 3.0  # the object's appearance (grid rows 3-8, columns 4-9)
+    saliency = np.full((4, 24, 32), 0.01, np.float32)
+    saliency[:, 6:18, 8:20] = 0.95  # the object
+    saliency[:, 0:6, 24:32] = 0.95  # a moving background patch of background appearance
+    plain = ConvGRUStage(weights=str(tmp_path / "fusion.pt"), window=None, device="cpu")
+    mixed = ConvGRUStage(weights=str(tmp_path / "fusion.pt"), window=None, device="cpu", selftrain=1.0)
+    fused = plain.fuse(features, saliency)
+    np.testing.assert_allclose(fused, saliency, atol=1e-5)
+    out = mixed.fuse(features, saliency)
+    np.testing.assert_allclose(out, self_trained_probability(features, fused, weight=1.0), atol=1e-6)
+    assert out[:, 6:18, 8:20].mean() > 0.8 and out[:, 0:6, 24:32].mean() < 0.3
+    half = ConvGRUStage(weights=str(tmp_path / "fusion.pt"), window=None, device="cpu", selftrain=0.5)
+    np.testing.assert_allclose(half.fuse(features, saliency), 0.5 * fused + 0.5 * out, atol=1e-5)
+
+
+def test_selftrain_thresholds_are_checked():
+    from eponet.core.registry import get_registry
+
+    spec = get_registry().get("fusion", "convgru")
+    params = {p.name: p.default for p in spec.params}
+    assert spec.check({**params, "selftrain_foreground": 0.5, "selftrain_background": 0.6}) == [
+        "selftrain_background: expected a threshold below selftrain_foreground (0.5), got 0.6"]
+
+
 def test_shipped_fusion_weights_match_their_catalogue_checksum_and_stay_small():
     from tests.conftest import assert_shipped_weights
 
