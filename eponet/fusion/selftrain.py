@@ -43,8 +43,10 @@ def fit_appearance(features: np.ndarray, labels: np.ndarray, *, l2: float = 1e-3
     half = max(1, samples // 2)
     positive = np.sort(rng.choice(positive, min(half, len(positive)), replace=False))
     negative = np.sort(rng.choice(negative, min(half, len(negative)), replace=False))
+    # per-channel mean and std over every cell of the window (any values would do: training and prediction fold
+    # the same ones, so they only condition the fit); einsum sums the squares without a copy of the window
     mean = x.mean(axis=(0, 2))
-    std = np.sqrt(np.maximum((x * x).mean(axis=(0, 2)) - mean * mean, 0.0)) + 1e-6
+    std = np.sqrt(np.maximum(np.einsum("fcp,fcp->c", x, x) / (frames * h * w) - mean * mean, 0.0)) + 1e-6
     cells = np.concatenate([positive, negative])
     rows = x[cells // (h * w), :, cells % (h * w)]  # (n, C): only the training cells are gathered
     train = torch.from_numpy(((rows - mean) / std).astype(np.float32))
