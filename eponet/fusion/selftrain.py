@@ -70,8 +70,7 @@ def fit_appearance(features: np.ndarray, labels: np.ndarray, *, l2: float = 1e-3
     w_raw = weights.detach().numpy() / std
     b_raw = float(bias.detach()[0]) - float(w_raw @ mean)
     logits = np.matmul(w_raw.astype(np.float32)[None, None, :], x)[:, 0] + np.float32(b_raw)  # (F, h * w)
-    probability = 1.0 / (1.0 + np.exp(-np.clip(logits, -60.0, 60.0)))
-    return probability.reshape(frames, h, w).astype(np.float32)
+    return torch.sigmoid(torch.from_numpy(logits)).numpy().reshape(frames, h, w)
 
 
 def self_trained_probability(features: np.ndarray, saliency: np.ndarray, *, foreground: float = 0.9,

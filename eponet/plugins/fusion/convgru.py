@@ -10,7 +10,7 @@ from eponet.core.devices import DEVICES, torch_device
 from eponet.core.errors import MissingWeights, StageError
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
-from eponet.plugins.fusion import window_problems
+from eponet.plugins.fusion import threshold_problems, window_problems
 from eponet.weights import resolve_weights
 
 __all__ = ["ConvGRUStage", "load_fusion"]
@@ -87,11 +87,8 @@ def _check(params: dict) -> list[str]:
         resolve_weights(params["weights"], sha256=params.get("sha256"), kind="fusion")
     except MissingWeights as exc:
         problems.append(exc.problem)
-    problems += window_problems(params)
-    if params["selftrain_background"] >= params["selftrain_foreground"]:
-        problems.append(f"selftrain_background: expected a threshold below selftrain_foreground "
-                        f"({params['selftrain_foreground']}), got {params['selftrain_background']}")
-    return problems
+    return problems + window_problems(params) + threshold_problems(params, "selftrain_foreground",
+                                                                    "selftrain_background")
 
 
 @hookimpl

@@ -7,7 +7,7 @@ import numpy as np
 
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
-from eponet.plugins.fusion import window_problems
+from eponet.plugins.fusion import threshold_problems, window_problems
 
 __all__ = ["SelfTrainStage"]
 
@@ -32,11 +32,7 @@ class SelfTrainStage:
 
 
 def _check(params: dict) -> list[str]:
-    problems = window_problems(params)
-    if params["background"] >= params["foreground"]:
-        problems.append(f"background: expected a threshold below foreground ({params['foreground']}), "
-                        f"got {params['background']}")
-    return problems
+    return window_problems(params) + threshold_problems(params)
 
 
 @hookimpl
