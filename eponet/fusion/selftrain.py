@@ -8,7 +8,9 @@ seeded by motion boundaries) and the self-training of test-time adaptation metho
 
 1. the saliency is averaged onto the appearance features' grid (``(h, w)``, stride 8);
 2. pixels above ``foreground`` are positives, below ``background`` negatives (at most ``samples`` of them,
-   half of each class, drawn with a seeded generator);
+   half of each class, drawn with a seeded generator); with ``foreground_share > 0``, a window where fewer than
+   that share of the cells are above ``foreground`` (a small object, or a map that is nowhere sure) takes its
+   top ``foreground_share`` of cells as positives instead, as long as they are above ``foreground_floor``;
 3. an L2-regularised logistic regression on the standardised features (class-balanced loss, L-BFGS);
 4. its probability on every grid cell, bilinearly upsampled, is mixed with the saliency:
    ``(1 - weight) * saliency + weight * appearance``.
@@ -20,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MIN_SAMPLES", "self_trained_probability", "fit_appearance"]
+__all__ = ["MIN_SAMPLES", "self_trained_probability", "fit_appearance", "foreground_threshold"]
 
 #: The fewest confident grid cells of each class a window needs to be self-trained.
 MIN_SAMPLES = 20
@@ -73,9 +75,26 @@ def fit_appearance(features: np.ndarray, labels: np.ndarray, *, l2: float = 1e-3
     return torch.sigmoid(torch.from_numpy(logits)).numpy().reshape(frames, h, w)
 
 
+def foreground_threshold(grid: np.ndarray, foreground: float, share: float = 0.0, floor: float = 0.0) -> float:
+    """The probability above which a cell of ``grid`` float ``(F, h, w)`` is a foreground example: ``foreground``,
+    lowered to the ``1 - share`` quantile of the grid when fewer than ``share`` of its cells are above it, but
+    never below ``floor``.
+
+    >>> grid = np.zeros((1, 10, 10)); grid[0, 0, :5] = 0.6      # 5% of the cells, none above 0.8
+    >>> foreground_threshold(grid, 0.8), foreground_threshold(grid, 0.8, 0.04, 0.3)
+    (0.8, 0.6)
+    >>> foreground_threshold(grid, 0.8, 0.04, 0.7)              # not below the floor
+    0.7
+    """
+    if share <= 0:
+        return float(foreground)
+    return float(min(foreground, max(floor, np.quantile(grid, 1.0 - share))))
+
+
 def self_trained_probability(features: np.ndarray, saliency: np.ndarray, *, foreground: float = 0.9,
                              background: float = 0.05, weight: float = 0.5, l2: float = 1e-3,
-                             iterations: int = 60, samples: int = 60000, seed: int = 0) -> np.ndarray:
+                             iterations: int = 60, samples: int = 60000, seed: int = 0,
+                             foreground_share: float = 0.0, foreground_floor: float = 0.0) -> np.ndarray:
     """Foreground probability float32 ``(F, H, W)`` in [0, 1] from appearance ``features`` float
     ``(F, C, h, w)`` and the motion network's ``saliency`` float ``(F, H, W)`` in [0, 1] (see the module
     docstring); the saliency itself when the window has too few confident pixels.
@@ -97,7 +116,7 @@ def self_trained_probability(features: np.ndarray, saliency: np.ndarray, *, fore
     h, w = features.shape[2:]
     grid = np.stack([cv2.resize(np.asarray(s, np.float32), (w, h), interpolation=cv2.INTER_AREA) for s in saliency])
     labels = np.full(grid.shape, -1, np.int8)
-    labels[grid > foreground] = 1
+    labels[grid > foreground_threshold(grid, foreground, foreground_share, foreground_floor)] = 1
     labels[grid < background] = 0
     appearance = fit_appearance(features, labels, l2=l2, iterations=iterations, samples=samples, seed=seed)
     if appearance is None:

@@ -42,18 +42,22 @@ class ConvGRUStage:
     for the memory bound), stitched by ``blend``; logits are bilinearly upsampled to the saliency's size.
 
     ``selftrain > 0`` then self-trains, per window, an appearance classifier on the fused map's confident pixels
-    (above ``selftrain_foreground``, below ``selftrain_background``) and mixes its probability in with that
-    share (:func:`eponet.fusion.selftrain.self_trained_probability`): the ``selftrain`` fusion's test-time
-    adaptation, seeded by the fusion instead of the motion map."""
+    (above ``selftrain_foreground``, or the window's top ``selftrain_foreground_share`` of cells down to
+    ``selftrain_foreground_floor`` where fewer are; below ``selftrain_background``) and mixes its probability in
+    with that share (:func:`eponet.fusion.selftrain.self_trained_probability`): the ``selftrain`` fusion's
+    test-time adaptation, seeded by the fusion instead of the motion map."""
 
     def __init__(self, *, weights: str = "epo-plus-davis", sha256: str | None = None, window: int | None = 32,
                  overlap: int = 8, blend: str = "centre", device: str = "auto", selftrain: float = 0.0,
-                 selftrain_foreground: float = 0.9, selftrain_background: float = 0.05, selftrain_samples: int = 60000):
+                 selftrain_foreground: float = 0.9, selftrain_background: float = 0.05, selftrain_samples: int = 60000,
+                 selftrain_l2: float = 1e-3, selftrain_foreground_share: float = 0.0,
+                 selftrain_foreground_floor: float = 0.5):
         self.model, self.sha256 = load_fusion(weights, sha256)
         self.window, self.overlap, self.blend = window, overlap, blend
         self.device = torch_device(device)
         self.selftrain = dict(weight=selftrain, foreground=selftrain_foreground, background=selftrain_background,
-                              samples=selftrain_samples)
+                              samples=selftrain_samples, l2=selftrain_l2, foreground_share=selftrain_foreground_share,
+                              foreground_floor=selftrain_foreground_floor)
 
     def fuse(self, features: np.ndarray, saliency: np.ndarray) -> np.ndarray:
         """Foreground probability float32 ``(F, H, W)`` from features ``(F, C, h, w)`` and saliency ``(F, H, W)``."""
@@ -87,8 +91,7 @@ def _check(params: dict) -> list[str]:
         resolve_weights(params["weights"], sha256=params.get("sha256"), kind="fusion")
     except MissingWeights as exc:
         problems.append(exc.problem)
-    return problems + window_problems(params) + threshold_problems(params, "selftrain_foreground",
-                                                                    "selftrain_background")
+    return problems + window_problems(params) + threshold_problems(params, "selftrain_")
 
 
 @hookimpl
@@ -118,6 +121,12 @@ def eponet_stages():
                       "background example for selftrain", minimum=0.0, maximum=1.0),
                 Param("selftrain_samples", "int", 60000, "at most this many training cells per window for "
                       "selftrain (half per class); its cost grows with them", minimum=2),
+                Param("selftrain_l2", "float", 1e-3, "L2 penalty of selftrain's logistic regression", minimum=0.0),
+                Param("selftrain_foreground_share", "float", 0.0, "where fewer than this share of a window's cells "
+                      "are above selftrain_foreground, its top share of cells are the foreground examples "
+                      "(0 = never)", minimum=0.0, maximum=1.0),
+                Param("selftrain_foreground_floor", "float", 0.5, "fused probability below which a cell is never a "
+                      "foreground example, even with selftrain_foreground_share", minimum=0.0, maximum=1.0),
             ),
             doc="EpO+ fusion: bottleneck appearance features + motion map through a bidirectional ConvGRU",
             check=_check,

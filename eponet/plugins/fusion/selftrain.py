@@ -19,10 +19,11 @@ class SelfTrainStage:
 
     def __init__(self, *, window: int | None = 64, overlap: int = 16, foreground: float = 0.9,
                  background: float = 0.05, weight: float = 0.5, l2: float = 1e-3, iterations: int = 60,
-                 samples: int = 60000, seed: int = 0):
+                 samples: int = 60000, seed: int = 0, foreground_share: float = 0.0, foreground_floor: float = 0.5):
         self.window, self.overlap = window, overlap
         self.settings = dict(foreground=foreground, background=background, weight=weight, l2=l2,
-                             iterations=iterations, samples=samples, seed=seed)
+                             iterations=iterations, samples=samples, seed=seed, foreground_share=foreground_share,
+                             foreground_floor=foreground_floor)
 
     def fuse(self, features: np.ndarray, saliency: np.ndarray) -> np.ndarray:
         """Foreground probability float32 ``(F, H, W)`` from features ``(F, C, h, w)`` and saliency ``(F, H, W)``."""
@@ -57,6 +58,11 @@ def eponet_stages():
                 Param("samples", "int", 60000, "at most this many training cells per window (half per class)",
                       minimum=2),
                 Param("seed", "int", 0, "seed of the training cells' draw", minimum=0),
+                Param("foreground_share", "float", 0.0, "where fewer than this share of a window's cells are above "
+                      "foreground, its top share of cells are the foreground examples (0 = never)",
+                      minimum=0.0, maximum=1.0),
+                Param("foreground_floor", "float", 0.5, "saliency below which a cell is never a foreground example, "
+                      "even with foreground_share", minimum=0.0, maximum=1.0),
             ),
             doc="per-video appearance classifier self-trained on the motion map's confident pixels (no weights)",
             check=_check,

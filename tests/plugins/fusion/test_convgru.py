@@ -190,6 +190,9 @@ def test_selftrain_thresholds_are_checked():
     params = {p.name: p.default for p in spec.params}
     assert spec.check({**params, "selftrain_foreground": 0.5, "selftrain_background": 0.6}) == [
         "selftrain_background: expected a threshold below selftrain_foreground (0.5), got 0.6"]
+    assert spec.check({**params, "selftrain_foreground_share": 0.03, "selftrain_foreground_floor": 0.05}) == [
+        "selftrain_foreground_floor: expected a threshold above selftrain_background (0.05), got 0.05"]
+    assert spec.check({**params, "selftrain_foreground_floor": 0.05}) == []  # no share: the floor is unused
 
 
 def test_shipped_fusion_weights_match_their_catalogue_checksum_and_stay_small():

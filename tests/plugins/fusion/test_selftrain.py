@@ -56,6 +56,26 @@ def test_too_few_confident_pixels_keep_the_saliency():
     assert fit_appearance(features, labels) is None
 
 
+def test_foreground_share_seeds_a_window_that_is_nowhere_sure():
+    """A small object the map only half marks (0.45 everywhere on it, nothing above 0.9): the fixed threshold keeps
+    the saliency; with ``foreground_share`` the window's top cells seed the classifier, the object comes out sure
+    and the distractor (0.4, background appearance) does not; a floor above the object's 0.45 keeps the saliency."""
+    features, saliency, obj = _scene()
+    dim = np.full(saliency.shape, 0.01, np.float32)
+    dim[:, 6:18, 8:20] = 0.45
+    dim[:, 0:6, 24:32] = 0.40
+    assert np.array_equal(self_trained_probability(features, dim, weight=1.0), dim)
+    share = obj.mean()  # the object's share of the frame: its cells are the window's top share
+    p = self_trained_probability(features, dim, weight=1.0, foreground_share=share, foreground_floor=0.3)
+    assert p[:, obj].mean() > 0.8 and p[:, 0:6, 24:32].mean() < 0.3
+    floored = self_trained_probability(features, dim, weight=1.0, foreground_share=share, foreground_floor=0.5)
+    assert np.array_equal(floored, dim)
+    # where the map is sure about enough cells, the share changes nothing
+    sure = self_trained_probability(features, saliency, weight=1.0)
+    assert np.array_equal(self_trained_probability(features, saliency, weight=1.0, foreground_share=0.01,
+                                                   foreground_floor=0.3), sure)
+
+
 def test_seeded_and_deterministic_stage():
     features, saliency, _ = _scene()
     stage = SelfTrainStage(window=None, samples=200)
