@@ -94,7 +94,7 @@ def foreground_threshold(grid: np.ndarray, foreground: float, share: float = 0.0
 def self_trained_probability(features: np.ndarray, saliency: np.ndarray, *, foreground: float = 0.9,
                              background: float = 0.05, weight: float = 0.5, l2: float = 1e-3,
                              iterations: int = 60, samples: int = 60000, seed: int = 0,
-                             foreground_share: float = 0.0, foreground_floor: float = 0.0) -> np.ndarray:
+                             foreground_share: float = 0.0, foreground_floor: float = 0.5) -> np.ndarray:
     """Foreground probability float32 ``(F, H, W)`` in [0, 1] from appearance ``features`` float
     ``(F, C, h, w)`` and the motion network's ``saliency`` float ``(F, H, W)`` in [0, 1] (see the module
     docstring); the saliency itself when the window has too few confident pixels.
