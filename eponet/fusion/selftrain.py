@@ -10,7 +10,9 @@ seeded by motion boundaries) and the self-training of test-time adaptation metho
 2. pixels above ``foreground`` are positives, below ``background`` negatives (at most ``samples`` of them,
    half of each class, drawn with a seeded generator); with ``foreground_share > 0``, a window where fewer than
    that share of the cells are above ``foreground`` (a small object, or a map that is nowhere sure) takes its
-   top ``foreground_share`` of cells as positives instead, as long as they are above ``foreground_floor``;
+   top ``foreground_share`` of cells as positives instead, as long as they are above ``foreground_floor``; given a
+   second map (``motion``, e.g. the motion network's map under a fusion's output), a negative must also be below
+   ``background_motion`` there: both cues agree that it is background;
 3. an L2-regularised logistic regression on the standardised features (class-balanced loss, L-BFGS);
 4. its probability on every grid cell, bilinearly upsampled, is mixed with the saliency:
    ``(1 - weight) * saliency + weight * appearance``.
@@ -75,6 +77,13 @@ def fit_appearance(features: np.ndarray, labels: np.ndarray, *, l2: float = 1e-3
     return torch.sigmoid(torch.from_numpy(logits)).numpy().reshape(frames, h, w)
 
 
+def _on_grid(maps: np.ndarray, h: int, w: int) -> np.ndarray:
+    """float32 ``(F, h, w)``: each of ``maps`` ``(F, H, W)`` averaged onto the features' grid."""
+    import cv2
+
+    return np.stack([cv2.resize(np.asarray(m, np.float32), (w, h), interpolation=cv2.INTER_AREA) for m in maps])
+
+
 def foreground_threshold(grid: np.ndarray, foreground: float, share: float = 0.0, floor: float = 0.0) -> float:
     """The probability above which a cell of ``grid`` float ``(F, h, w)`` is a foreground example: ``foreground``,
     lowered to the ``1 - share`` quantile of the grid when fewer than ``share`` of its cells are above it, but
@@ -94,7 +103,8 @@ def foreground_threshold(grid: np.ndarray, foreground: float, share: float = 0.0
 def self_trained_probability(features: np.ndarray, saliency: np.ndarray, *, foreground: float = 0.9,
                              background: float = 0.05, weight: float = 0.5, l2: float = 1e-3,
                              iterations: int = 60, samples: int = 60000, seed: int = 0,
-                             foreground_share: float = 0.0, foreground_floor: float = 0.5) -> np.ndarray:
+                             foreground_share: float = 0.0, foreground_floor: float = 0.5,
+                             motion: np.ndarray | None = None, background_motion: float | None = None) -> np.ndarray:
     """Foreground probability float32 ``(F, H, W)`` in [0, 1] from appearance ``features`` float
     ``(F, C, h, w)`` and the motion network's ``saliency`` float ``(F, H, W)`` in [0, 1] (see the module
     docstring); the saliency itself when the window has too few confident pixels.
@@ -114,10 +124,13 @@ def self_trained_probability(features: np.ndarray, saliency: np.ndarray, *, fore
 
     frames, height, width = saliency.shape
     h, w = features.shape[2:]
-    grid = np.stack([cv2.resize(np.asarray(s, np.float32), (w, h), interpolation=cv2.INTER_AREA) for s in saliency])
+    grid = _on_grid(saliency, h, w)
     labels = np.full(grid.shape, -1, np.int8)
     labels[grid > foreground_threshold(grid, foreground, foreground_share, foreground_floor)] = 1
-    labels[grid < background] = 0
+    background_cells = grid < background
+    if motion is not None and background_motion is not None:
+        background_cells &= _on_grid(motion, h, w) < background_motion
+    labels[background_cells] = 0
     appearance = fit_appearance(features, labels, l2=l2, iterations=iterations, samples=samples, seed=seed)
     if appearance is None:
         return np.asarray(saliency, np.float32)

@@ -43,7 +43,8 @@ class ConvGRUStage:
 
     ``selftrain > 0`` then self-trains, per window, an appearance classifier on the fused map's confident pixels
     (above ``selftrain_foreground``, or the window's top ``selftrain_foreground_share`` of cells down to
-    ``selftrain_foreground_floor`` where fewer are; below ``selftrain_background``) and mixes its probability in
+    ``selftrain_foreground_floor`` where fewer are; below ``selftrain_background``, and below
+    ``selftrain_background_motion`` in the motion map when that is set) and mixes its probability in
     with that share (:func:`eponet.fusion.selftrain.self_trained_probability`): the ``selftrain`` fusion's
     test-time adaptation, seeded by the fusion instead of the motion map."""
 
@@ -51,13 +52,14 @@ class ConvGRUStage:
                  overlap: int = 8, blend: str = "centre", device: str = "auto", selftrain: float = 0.0,
                  selftrain_foreground: float = 0.9, selftrain_background: float = 0.05, selftrain_samples: int = 60000,
                  selftrain_l2: float = 1e-3, selftrain_foreground_share: float = 0.0,
-                 selftrain_foreground_floor: float = 0.5):
+                 selftrain_foreground_floor: float = 0.5, selftrain_background_motion: float | None = None):
         self.model, self.sha256 = load_fusion(weights, sha256)
         self.window, self.overlap, self.blend = window, overlap, blend
         self.device = torch_device(device)
         self.selftrain = dict(weight=selftrain, foreground=selftrain_foreground, background=selftrain_background,
                               samples=selftrain_samples, l2=selftrain_l2, foreground_share=selftrain_foreground_share,
-                              foreground_floor=selftrain_foreground_floor)
+                              foreground_floor=selftrain_foreground_floor,
+                              background_motion=selftrain_background_motion)
 
     def fuse(self, features: np.ndarray, saliency: np.ndarray) -> np.ndarray:
         """Foreground probability float32 ``(F, H, W)`` from features ``(F, C, h, w)`` and saliency ``(F, H, W)``."""
@@ -81,7 +83,7 @@ class ConvGRUStage:
         if self.selftrain["weight"] > 0:
             from eponet.fusion.selftrain import self_trained_probability
 
-            out = self_trained_probability(features, out, **self.selftrain)
+            out = self_trained_probability(features, out, motion=saliency, **self.selftrain)
         return out
 
 
@@ -127,6 +129,9 @@ def eponet_stages():
                       "(0 = never)", minimum=0.0, maximum=1.0),
                 Param("selftrain_foreground_floor", "float", 0.5, "fused probability below which a cell is never a "
                       "foreground example, even with selftrain_foreground_share", minimum=0.0, maximum=1.0),
+                Param("selftrain_background_motion", "float", None, "a background example for selftrain must also be "
+                      "below this in the motion map (null = the fused map alone decides)", minimum=0.0, maximum=1.0,
+                      nullable=True),
             ),
             doc="EpO+ fusion: bottleneck appearance features + motion map through a bidirectional ConvGRU",
             check=_check,

@@ -76,6 +76,31 @@ def test_foreground_share_seeds_a_window_that_is_nowhere_sure():
                                                    foreground_floor=0.3), sure)
 
 
+def test_background_examples_can_require_the_motion_map_to_agree():
+    """With ``motion`` and ``background_motion``, a cell the fused map calls background is a negative only where the
+    motion map is below ``background_motion`` too: the result is exactly the fit on those labels."""
+    import cv2
+
+    features, saliency, obj = _scene()
+    fused = np.where(saliency > 0.5, 0.95, 0.01).astype(np.float32)
+    fused[:, 0:6, 24:32] = 0.01  # the fusion dropped the moving patch ...
+    motion = saliency.copy()  # ... which the motion map still marks (0.95)
+    p = self_trained_probability(features, fused, weight=1.0, motion=motion, background_motion=0.1)
+    grid = np.stack([cv2.resize(f, (16, 12), interpolation=cv2.INTER_AREA) for f in fused])
+    moving = np.stack([cv2.resize(m, (16, 12), interpolation=cv2.INTER_AREA) for m in motion])
+    labels = np.full(grid.shape, -1, np.int8)
+    labels[grid > 0.9] = 1
+    labels[(grid < 0.05) & (moving < 0.1)] = 0
+    assert (labels[:, 0:3, 12:16] == -1).all()  # the patch is no background example
+    expected = fit_appearance(features, labels)
+    expected = np.stack([cv2.resize(e, (32, 24), interpolation=cv2.INTER_LINEAR) for e in expected])
+    np.testing.assert_allclose(p, np.clip(expected, 0, 1), atol=1e-6)
+    assert p[:, obj].mean() > 0.8
+    # without a threshold the motion map is ignored
+    np.testing.assert_array_equal(self_trained_probability(features, fused, weight=1.0, motion=motion),
+                                  self_trained_probability(features, fused, weight=1.0))
+
+
 def test_seeded_and_deterministic_stage():
     features, saliency, _ = _scene()
     stage = SelfTrainStage(window=None, samples=200)
