@@ -10,7 +10,7 @@ from eponet.core.devices import DEVICES, torch_device
 from eponet.core.errors import MissingWeights, StageError
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
-from eponet.plugins.fusion import threshold_problems, window_problems
+from eponet.plugins.fusion import example_params, threshold_problems, window_problems
 from eponet.weights import resolve_weights
 
 __all__ = ["ConvGRUStage", "load_fusion"]
@@ -117,18 +117,7 @@ def eponet_stages():
                 Param("selftrain", "float", 0.0, "share of a per-window appearance classifier self-trained on the "
                       "fused map's confident pixels (0 = the fusion alone; see the selftrain fusion)",
                       minimum=0.0, maximum=1.0),
-                Param("selftrain_foreground", "float", 0.9, "fused probability above which a pixel is a "
-                      "foreground example for selftrain", minimum=0.0, maximum=1.0),
-                Param("selftrain_background", "float", 0.05, "fused probability below which a pixel is a "
-                      "background example for selftrain", minimum=0.0, maximum=1.0),
-                Param("selftrain_samples", "int", 60000, "at most this many training cells per window for "
-                      "selftrain (half per class); its cost grows with them", minimum=2),
-                Param("selftrain_l2", "float", 1e-3, "L2 penalty of selftrain's logistic regression", minimum=0.0),
-                Param("selftrain_foreground_share", "float", 0.0, "where fewer than this share of a window's cells "
-                      "are above selftrain_foreground, its top share of cells are the foreground examples "
-                      "(0 = never)", minimum=0.0, maximum=1.0),
-                Param("selftrain_foreground_floor", "float", 0.5, "fused probability below which a cell is never a "
-                      "foreground example, even with selftrain_foreground_share", minimum=0.0, maximum=1.0),
+                *example_params("selftrain_", "fused probability"),
                 Param("selftrain_background_motion", "float", None, "a background example for selftrain must also be "
                       "below this in the motion map (null = the fused map alone decides)", minimum=0.0, maximum=1.0,
                       nullable=True),

@@ -7,7 +7,7 @@ import numpy as np
 
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
-from eponet.plugins.fusion import threshold_problems, window_problems
+from eponet.plugins.fusion import example_params, threshold_problems, window_problems
 
 __all__ = ["SelfTrainStage"]
 
@@ -47,22 +47,11 @@ def eponet_stages():
                 Param("window", "int", 64, "frames per self-trained window (memory grows with it); null: one "
                       "classifier for the whole video", minimum=2, nullable=True),
                 Param("overlap", "int", 16, "frames shared by consecutive windows", minimum=0),
-                Param("foreground", "float", 0.9, "saliency above which a pixel is a foreground example",
-                      minimum=0.0, maximum=1.0),
-                Param("background", "float", 0.05, "saliency below which a pixel is a background example",
-                      minimum=0.0, maximum=1.0),
+                *example_params("", "saliency"),
                 Param("weight", "float", 0.5, "share of the appearance probability in the output (0 = the "
                       "saliency unchanged, 1 = appearance only)", minimum=0.0, maximum=1.0),
-                Param("l2", "float", 1e-3, "L2 penalty of the logistic regression", minimum=0.0),
                 Param("iterations", "int", 60, "L-BFGS iterations", minimum=1),
-                Param("samples", "int", 60000, "at most this many training cells per window (half per class)",
-                      minimum=2),
                 Param("seed", "int", 0, "seed of the training cells' draw", minimum=0),
-                Param("foreground_share", "float", 0.0, "where fewer than this share of a window's cells are above "
-                      "foreground, its top share of cells are the foreground examples (0 = never)",
-                      minimum=0.0, maximum=1.0),
-                Param("foreground_floor", "float", 0.5, "saliency below which a cell is never a foreground example, "
-                      "even with foreground_share", minimum=0.0, maximum=1.0),
             ),
             doc="per-video appearance classifier self-trained on the motion map's confident pixels (no weights)",
             check=_check,
