@@ -15,7 +15,9 @@ default 1), after a warm-up batch:
 - ``flow``: the presets' flow (``dis``, ``medium`` with ``finest_scale: 0``) forward + backward per frame, and
   OpenCV's own ``medium`` (``finest_scale: null``, which is R's computation) through the same stage.
 - ``rigidity``: the presets' trifocal stage on the dense trajectories of the frames (DIS flow, not timed), with
-  numpy's BLAS on one thread, as runs hold it, and on every core (``--stages rigidity``, not in the default set).
+  numpy's BLAS on one thread, as runs hold it, and on every core; and on one thread with the RANSAC trial counts
+  as they were before their noise floor (``RobustSettings.trial_floor``) (``--stages rigidity``, not in the
+  default set).
 - ``refiner``: the ``epo`` preset's dense CRF (854x480 frames and probabilities, run at 427 px wide) on real
   frames, split into its parts (resizing and unary, the Gaussian and bilateral kernels' set-up, the five
   mean-field iterations: pydensecrf's), and ``densecrf_mask`` as the stage calls it, with the preset's backend
@@ -25,6 +27,7 @@ default 1), after a warm-up batch:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -163,6 +166,12 @@ def bench_rigidity(frames: list[np.ndarray]) -> dict[str, float]:
         with threadpool_limits(limits=threads, user_api="blas"):
             figures[f"trifocal, BLAS on {threads} thread(s)"] = _timed(
                 lambda: stage.score(tracks, flow, np.random.default_rng(0)), len(frames), repeats=2)
+    # the searches' trial counts from the LMedS noise estimate alone, as before 2026-12-05
+    before = TrifocalRigidity()
+    before.settings = dataclasses.replace(before.settings, trial_floor=False)
+    with threadpool_limits(limits=1, user_api="blas"):
+        figures["trifocal, BLAS on 1 thread, trial count without the noise floor (before)"] = _timed(
+            lambda: before.score(tracks, flow, np.random.default_rng(0)), len(frames), repeats=2)
     return figures
 
 

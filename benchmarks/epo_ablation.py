@@ -141,10 +141,11 @@ def validation_root(davis: Path, sequences: list[str], out: Path) -> Path:
 
 
 def run_validation(stages: dict, out: Path, davis: Path, sequences: list[str], *, preset: str = "epo",
-                   save: tuple = ("masks",), evaluate: dict | None = None, run: dict | None = None) -> dict:
+                   save: tuple = ("masks",), evaluate: dict | None = None, run: dict | None = None,
+                   seed: int = 0) -> dict:
     """Run ``preset`` with ``stages`` (and the spec's ``run`` settings, when given) on the validation root's 480p
     frames at scale 0.5 (the setting of every held-out figure), saving ``save`` under ``out``; returns the run's
-    manifest (with ``evaluation`` when ``evaluate`` is given)."""
+    manifest (with ``evaluation`` when ``evaluate`` is given). ``seed`` is the spec's (RANSAC, self-training)."""
     from eponet.core.pipeline import Pipeline
     from eponet.core.progress import set_quiet
     from eponet.core.spec import parse_spec
@@ -152,7 +153,7 @@ def run_validation(stages: dict, out: Path, davis: Path, sequences: list[str], *
     set_quiet(True)
     document = {"preset": preset,
                 "input": {"path": str(davis), "resolution": "480p", "sequences": sequences, "scale": 0.5},
-                "stages": stages, "output": {"dir": str(out), "save": list(save)}, "seed": 0}
+                "stages": stages, "output": {"dir": str(out), "save": list(save)}, "seed": seed}
     if evaluate is not None:
         document["evaluate"] = evaluate
     if run:

@@ -25,6 +25,8 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-ed-video --run ed_window=null \
         --sequences bmx-bumps,car-turn,dance-jump,hockey,paragliding,stroller
         # some sequences only, with other run settings (here the whole video's ED scale)
+    python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus-seed1 --seeds 0,1 --seed 1
+        # the same networks with another RANSAC / self-training seed: how far the figures move by chance
     python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--trajectories cull_collisions=true] \
         [--flow-cache DIR]
     python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-epo-pair --seeds 0,1
@@ -110,9 +112,9 @@ def _finite(value):
     return float(value) if value is not None and np.isfinite(value) else None
 
 
-def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, trajectories: dict | None = None
-           ) -> dict[str, dict]:
-    """ED ROC AUC per sequence (no training, so the folds only label the rows)."""
+def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, trajectories: dict | None = None,
+           seed: int = 0) -> dict[str, dict]:
+    """ED ROC AUC per sequence (no training, so the folds only label the rows), the stage seeded with ``seed``."""
     import logging
 
     import geometry_davis_auc as g
@@ -123,7 +125,7 @@ def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, traj
     out = {}
     for i, names in enumerate(split):
         for name in names:
-            r = g.sequence_auc(name, ("default",), flow_cache=flow_cache, trajectories=trajectories)
+            r = g.sequence_auc(name, ("default",), flow_cache=flow_cache, trajectories=trajectories, seed=seed)
             out[name] = {"fold": i, "AUC": r["default"], "models": r["default_models"]}
             print(f"  {name:<18} AUC {r['default']:.3f} {r['default_models']}", flush=True)
     return out
@@ -152,14 +154,15 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             weights: Path | None = None, save: tuple[str, ...] = ("masks",), preset: str = "epo",
             fusion: dict | None = None, plus: bool = False, recipe_rigidity: dict | None = None,
             run: dict | None = None, only: set[str] | None = None, trajectories: dict | None = None,
-            seeds: tuple[int, ...] = (0,), crf_settings: dict | None = None) -> dict[str, dict]:
+            seeds: tuple[int, ...] = (0,), crf_settings: dict | None = None, run_seed: int = 0) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
     (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns). ``plus``: then
     train each fold's EpO+ fusion on that fold's frozen network (into ``out/fold<i>/fusion``) and score the
     ``epo+`` preset with both. ``run``: the spec's ``run`` settings; ``only``: score these sequences only;
-    ``crf_settings``: merged onto the refiner (the preset's, or the one ``refiner`` names)."""
+    ``crf_settings``: merged onto the refiner (the preset's, or the one ``refiner`` names); ``run_seed``: the held-out
+    runs' spec seed (RANSAC, self-training), not the networks'."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
@@ -214,7 +217,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         if not scored[i]:
             continue
         manifest = run_validation(stages, out / f"fold{i}" / "heldout", davis, scored[i], save=save, preset=preset,
-                                  evaluate={"dataset": "davis2016", "t": True}, run=run)
+                                  evaluate={"dataset": "davis2016", "t": True}, run=run, seed=run_seed)
         for name, v in manifest["evaluation"]["sequences"].items():
             per_sequence[name] = {"fold": i, "train_s": round(seconds[i], 1),
                                   **{m: _finite(v.get(m, {}).get("mean")) for m in "JFT"}}
@@ -251,6 +254,9 @@ def main(argv=None) -> int:
     parser.add_argument("--sequences", default=None,
                         help="epo: comma-separated sequences to score (default: every sequence of the folds)")
     parser.add_argument("--flow-cache", type=Path, default=None)
+    parser.add_argument("--seed", type=int, default=0,
+                        help="the rigidity stage's seed (ed), or the held-out runs' spec seed (epo, epo+: RANSAC, "
+                        "self-training), to measure how far the figures move by chance")
     parser.add_argument("--save", default="masks",
                         help="epo: comma-separated outputs of the held-out runs (output.save), e.g. masks,saliency,ed")
     parser.add_argument("--attributes", nargs="*", default=list(ATTRIBUTES))
@@ -274,9 +280,11 @@ def main(argv=None) -> int:
     trajectories = key_values(args.trajectories)
     if args.what == "ed":
         per_sequence = run_ed([split[i] if i in which else [] for i in range(len(split))], rigidity, args.flow_cache,
-                              trajectories)
+                              trajectories, args.seed)
         measures = ("AUC",)
         meta = {"rigidity": rigidity}
+        if args.seed:
+            meta["seed"] = args.seed
     else:
         fusion = key_values(args.fusion)
         plus = args.what == "epo+"
@@ -287,7 +295,7 @@ def main(argv=None) -> int:
         crf = key_values(args.crf)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
-                               trajectories, seeds, crf)
+                               trajectories, seeds, crf, args.seed)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -298,6 +306,8 @@ def main(argv=None) -> int:
             meta["crf"] = crf
         if seeds != (0,):  # (kept out of the default's record: earlier reports still merge)
             meta["seeds"] = list(seeds)
+        if args.seed:
+            meta["seed"] = args.seed
         if plus:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)

@@ -58,8 +58,8 @@ GRIC_PARAMS = (
         "min_sigma",
         "float",
         0.5,
-        "pixels: the lowest noise level GRIC assumes; motion that homographies explain to within about this "
-        "counts as degenerate for the epipolar model",
+        "pixels: the lowest noise level GRIC and the RANSAC trial counts assume; motion that homographies "
+        "explain to within about this counts as degenerate for the epipolar model",
         minimum=0.0,
     ),
 )

@@ -143,6 +143,7 @@ def robust_search(
     threshold_sq: float | None = None,
     eval_points: int = 1000,
     batch: int = 64,
+    min_sigma2: float = 0.0,
 ) -> RobustSearch | None:
     """Batched RANSAC hypothesise-and-verify over ``n`` data points.
 
@@ -152,7 +153,8 @@ def robust_search(
     threshold is needed and a model that fits more than half the data wins; otherwise MSAC, the sum of
     ``min(e^2, threshold_sq)`` ([TZ00]). The number of trials adapts to the inlier ratio of the best model
     so far (inliers: ``e^2`` below the threshold, or below ``chi^2_dof(0.95)`` times the LMedS variance) as
-    in [HZ] Algorithm 4.5, capped at ``max_trials``. Within a batch, hypotheses are first ranked on 100 of
+    in [HZ] Algorithm 4.5, capped at ``max_trials``; the LMedS variance is taken as at least ``min_sigma2``
+    there (the count only, not the scores). Within a batch, hypotheses are first ranked on 100 of
     the evaluation points and only the best 12 are scored on all of them (preemptive scoring, [N03]).
 
     Parameters
@@ -172,6 +174,13 @@ def robust_search(
         The only source of randomness.
     dof : int
         Degrees of freedom of an inlier's squared residual (``sigma^2 chi^2_dof``).
+    min_sigma2 : float
+        Pixels^2: the lowest noise variance the trial count assumes. Dense optical flow is smooth, so a model
+        fits most trajectories to a few hundredths of a pixel while the flow's real error is tenths of a pixel
+        with a heavy tail: the inliers within the 95% bound of the LMedS variance are then about 60% of the
+        points, whatever the model, and a six-point search runs 100-300 trials where one batch finds a model
+        as good. With the flow's noise level here (the rigidity stages pass their ``min_sigma``, GRIC's floor)
+        the ratio reflects the points a minimal sample may be drawn from.
 
     Returns
     -------
@@ -208,7 +217,7 @@ def robust_search(
             best_score, best_res = float(scores[k]), res[k]
             best_model = _take(models, k)
             if threshold_sq is None:
-                bound = inlier_bound(robust_sigma2(best_res, dof), dof)
+                bound = inlier_bound(max(robust_sigma2(best_res, dof), min_sigma2), dof)
             else:
                 bound = threshold_sq
             ratio = float(np.mean(best_res <= bound)) if np.isfinite(bound) else 0.0

@@ -90,7 +90,10 @@ class RobustSettings:
     estimated flow is often far below the flow's real error (DIS: ~0.2-0.6 px, spatially correlated, which
     the more flexible epipolar model partly absorbs), and GRIC with it rejects a homography for deviations of
     a few hundredths of a pixel. With the floor, motion that two homographies explain to within about
-    ``min_sigma`` counts as degenerate for the epipolar model.
+    ``min_sigma`` counts as degenerate for the epipolar model. With ``trial_floor`` (the default) the searches'
+    trial counts assume the same floor (``min_sigma2`` of :func:`eponet.geometry.robust.robust_search`): one batch
+    of 64 samples where the data allow instead of two to four; off, the count follows the LMedS noise estimate
+    alone (eponet before 2026-12-05).
     """
 
     confidence: float = 0.99
@@ -99,6 +102,7 @@ class RobustSettings:
     eval_points: int = 1000
     refine_iterations: int = 2
     min_sigma: float = 0.5
+    trial_floor: bool = True
 
 
 @dataclass
@@ -172,6 +176,11 @@ def is_static(*points: np.ndarray, threshold: float, fraction: float = 0.5) -> b
         Displacement in pixels below which a point "did not move" (estimated flow is never exactly 0).
     """
     return bool(np.mean(_unmoved(threshold, *points)) >= fraction)
+
+
+def _trial_sigma2(settings: RobustSettings) -> float:
+    """The noise variance (pixels^2) the searches' trial counts assume at least."""
+    return settings.min_sigma**2 if settings.trial_floor else 0.0
 
 
 def _bound(e2: np.ndarray, dof: int, settings: RobustSettings) -> float:
@@ -250,7 +259,7 @@ def fit_trifocal(x1, x2, x3, rng: np.random.Generator, settings: RobustSettings 
     found = robust_search(
         solve, residual, len(x1), 6, rng, dof=3, confidence=settings.confidence,
         max_trials=settings.max_trials, threshold_sq=None if settings.threshold is None else 3 * settings.threshold**2,
-        eval_points=settings.eval_points,
+        eval_points=settings.eval_points, min_sigma2=_trial_sigma2(settings),
     )
     if found is None:
         return None
@@ -291,7 +300,7 @@ def fit_homographies(x1, x2, x3, rng: np.random.Generator, settings: RobustSetti
     found = robust_search(
         solve, residual, len(x1), 4, rng, dof=4, confidence=settings.confidence,
         max_trials=settings.max_trials, threshold_sq=None if settings.threshold is None else 4 * settings.threshold**2,
-        eval_points=settings.eval_points,
+        eval_points=settings.eval_points, min_sigma2=_trial_sigma2(settings),
     )
     if found is None:
         return None
@@ -365,7 +374,7 @@ def fit_homography_pair(x1, x2, rng: np.random.Generator, settings: RobustSettin
     found = robust_search(
         solve, resid, len(x1), 4, rng, dof=2, confidence=settings.confidence, max_trials=settings.max_trials,
         threshold_sq=None if settings.threshold is None else 2 * settings.threshold**2,
-        eval_points=settings.eval_points,
+        eval_points=settings.eval_points, min_sigma2=_trial_sigma2(settings),
     )
     if found is None:
         return None

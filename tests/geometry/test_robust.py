@@ -152,3 +152,22 @@ def test_pair_model_selection():
         d = model.distance(x1, x2)
         assert np.median(d[~bad]) < 1.5 and np.median(d[bad]) > 3.0
         assert estimate_pair(x1, x2, np.random.default_rng(14), degeneracy="none").kind == "fundamental"
+
+
+def test_trial_count_assumes_the_flow_noise_floor():
+    """Dense flow: most points fit to hundredths of a pixel, a heavy tail to tenths. The LMedS bound then
+    counts only the tight core as inliers and asks for hundreds of six-point trials; with GRIC's noise floor
+    (``min_sigma``) one batch suffices and finds the same geometry."""
+    rng = np.random.default_rng(7)
+    (x1, x2, x3), bad = _triplet(rng, 3000, outliers=0.1)
+    tail = rng.random(3000) < 0.4
+    for v in (x1, x2, x3):
+        v += rng.normal(0, 0.02, v.shape) + tail[:, None] * rng.normal(0, 0.3, v.shape)
+    exact, _ = _triplet(np.random.default_rng(7), 3000)
+    trials = {}
+    for floor in (False, True):
+        settings = RobustSettings(min_sigma=0.5, trial_floor=floor)
+        fs, e2, trials[floor] = fit_trifocal(x1, x2, x3, np.random.default_rng(3), settings)
+        assert np.median(np.sqrt(triplet_sampson_error(*fs, *exact))) < 0.05, floor
+        assert np.median(e2[bad]) > 100 * np.median(e2[~bad]), floor
+    assert trials[False] > 64 and trials[True] == 64, trials
