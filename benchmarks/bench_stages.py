@@ -161,17 +161,16 @@ def bench_rigidity(frames: list[np.ndarray]) -> dict[str, float]:
                                                                    small.shape[1:3]))
     tracks = DenseTrajectories().build(flow)
     stage = TrifocalRigidity()
-    figures = {}
-    for threads in (1, os.cpu_count() or 1):
-        with threadpool_limits(limits=threads, user_api="blas"):
-            figures[f"trifocal, BLAS on {threads} thread(s)"] = _timed(
-                lambda: stage.score(tracks, flow, np.random.default_rng(0)), len(frames), repeats=2)
     # the searches' trial counts from the LMedS noise estimate alone, as before 2026-12-05
     before = TrifocalRigidity()
     before.settings = dataclasses.replace(before.settings, trial_floor=False)
-    with threadpool_limits(limits=1, user_api="blas"):
-        figures["trifocal, BLAS on 1 thread, trial count without the noise floor (before)"] = _timed(
-            lambda: before.score(tracks, flow, np.random.default_rng(0)), len(frames), repeats=2)
+    runs = [(f"trifocal, BLAS on {threads} thread(s)", stage, threads) for threads in (1, os.cpu_count() or 1)]
+    runs.append(("trifocal, BLAS on 1 thread, trial count without the noise floor (before)", before, 1))
+    figures = {}
+    for label, timed_stage, threads in runs:
+        with threadpool_limits(limits=threads, user_api="blas"):
+            figures[label] = _timed(lambda: timed_stage.score(tracks, flow, np.random.default_rng(0)), len(frames),
+                                    repeats=2)
     return figures
 
 

@@ -283,8 +283,6 @@ def main(argv=None) -> int:
                               trajectories, args.seed)
         measures = ("AUC",)
         meta = {"rigidity": rigidity}
-        if args.seed:
-            meta["seed"] = args.seed
     else:
         fusion = key_values(args.fusion)
         plus = args.what == "epo+"
@@ -306,12 +304,12 @@ def main(argv=None) -> int:
             meta["crf"] = crf
         if seeds != (0,):  # (kept out of the default's record: earlier reports still merge)
             meta["seeds"] = list(seeds)
-        if args.seed:
-            meta["seed"] = args.seed
         if plus:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)
             meta.update(preset=preset, fusion=fusion)
+    if args.seed:  # (kept out of the default's record: earlier reports still merge)
+        meta["seed"] = args.seed
     if trajectories:  # (kept out of the default's record: earlier reports still merge)
         meta["trajectories"] = trajectories
     previous = out / "kfold.json"
