@@ -58,8 +58,9 @@ GRIC_PARAMS = (
         "min_sigma",
         "float",
         0.5,
-        "pixels: the lowest noise level GRIC and the RANSAC trial counts assume; motion that homographies "
-        "explain to within about this counts as degenerate for the epipolar model",
+        "pixels: the lowest noise level GRIC and the RANSAC trial counts assume, and the trifocal search's MSAC "
+        "threshold (RMS per point); motion that homographies explain to within about this counts as degenerate "
+        "for the epipolar model",
         minimum=0.0,
     ),
 )
@@ -74,8 +75,9 @@ ROBUST_PARAMS = (
         "threshold",
         "float",
         None,
-        "inlier threshold in pixels (RMS first-order residual per point); null: adaptive, LMedS scoring with "
-        "the 95% chi-square bound of the robust noise estimate",
+        "inlier threshold in pixels (RMS first-order residual per point); null: adaptive, LMedS scoring (the "
+        "trifocal stage's six-point search: MSAC at min_sigma, robust to a dominant plane) with the 95% chi-square "
+        "bound of the robust noise estimate",
         minimum=0.0,
         exclusive_min=True,
         nullable=True,

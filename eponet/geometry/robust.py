@@ -22,6 +22,7 @@ from scipy.special import gammaincinv
 __all__ = [
     "ransac_trial_count",
     "draw_samples",
+    "finite_median",
     "robust_sigma2",
     "inlier_bound",
     "gric",
@@ -63,6 +64,21 @@ def draw_samples(rng: np.random.Generator, n: int, size: int, count: int) -> np.
         idx[bad] = rng.integers(0, n, (int(bad.sum()), size))
 
 
+def finite_median(values: np.ndarray) -> float:
+    """Median of a 1-D array without NaN, as :func:`numpy.median` gives it (the mean of the two middle values
+    for an even count), without its overhead: the robust fits take several medians of small arrays per
+    triplet. Raises ``ValueError`` for an empty array."""
+    values = np.asarray(values)
+    n = values.size
+    if n == 0:
+        raise ValueError("finite_median: empty array")
+    k = n // 2
+    if n % 2:
+        return float(np.partition(values, k)[k])
+    p = np.partition(values, (k - 1, k))
+    return float((p[k - 1] + p[k]) / 2)
+
+
 def robust_sigma2(residuals_sq: np.ndarray, dof: int, num_params: int = 0, iterations: int = 3) -> float:
     """Noise variance from squared residuals distributed as ``sigma^2 chi^2_dof`` for inliers.
 
@@ -78,13 +94,13 @@ def robust_sigma2(residuals_sq: np.ndarray, dof: int, num_params: int = 0, itera
         return float("nan")
     n = e2.size
     factor = (1.0 + 5.0 / max(n - num_params, 1)) ** 2
-    sigma2 = float(np.median(e2) / _chi2_ppf(0.5, dof) * factor)
+    sigma2 = finite_median(e2) / _chi2_ppf(0.5, dof) * factor
     bound, q = _chi2_ppf(0.95, dof), _chi2_ppf(0.475, dof)
     for _ in range(iterations):
         inside = e2[e2 <= bound * sigma2]
         if inside.size < max(10, num_params + 1) or sigma2 <= 0:
             break
-        sigma2 = float(np.median(inside) / q)
+        sigma2 = finite_median(inside) / q
     return sigma2
 
 
@@ -154,7 +170,7 @@ def robust_search(
     ``min(e^2, threshold_sq)`` ([TZ00]). The number of trials adapts to the inlier ratio of the best model
     so far (inliers: ``e^2`` below the threshold, or below ``chi^2_dof(0.95)`` times the LMedS variance) as
     in [HZ] Algorithm 4.5, capped at ``max_trials``; the LMedS variance is taken as at least ``min_sigma2``
-    there (the count only, not the scores). Within a batch, hypotheses are first ranked on 100 of
+    there, and the threshold as at least that variance's 95% bound (the count only, not the scores). Within a batch, hypotheses are first ranked on 100 of
     the evaluation points and only the best 12 are scored on all of them (preemptive scoring, [N03]).
 
     Parameters
@@ -219,7 +235,7 @@ def robust_search(
             if threshold_sq is None:
                 bound = inlier_bound(max(robust_sigma2(best_res, dof), min_sigma2), dof)
             else:
-                bound = threshold_sq
+                bound = max(threshold_sq, inlier_bound(min_sigma2, dof))
             ratio = float(np.mean(best_res <= bound)) if np.isfinite(bound) else 0.0
             needed = ransac_trial_count(ratio, sample_size, confidence)
     if best_model is None:

@@ -301,6 +301,33 @@ def _incidence_rows(x1: np.ndarray, x2: np.ndarray, x3: np.ndarray) -> np.ndarra
     return rows.reshape(len(h1), 4, 27)
 
 
+def _skew_gram(x: np.ndarray) -> np.ndarray:
+    """``sum_s r_s r_s^T`` over the two rows ``r_s`` of ``[x]x`` (equally its first two columns) for points
+    ``x`` (N, 2) with ``w = 1``: ``[[1, 0, -u], [0, 1, -v], [-u, -v, u^2 + v^2]]`` per point, (N, 3, 3)."""
+    m = np.zeros((len(x), 3, 3))
+    m[:, 0, 0] = m[:, 1, 1] = 1.0
+    m[:, 0, 2] = m[:, 2, 0] = -x[:, 0]
+    m[:, 1, 2] = m[:, 2, 1] = -x[:, 1]
+    m[:, 2, 2] = x[:, 0] ** 2 + x[:, 1] ** 2
+    return m
+
+
+def _incidence_normal(x1: np.ndarray, x2: np.ndarray, x3: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """``A^T W A`` (27, 27) of the stacked incidence rows ``A`` of :func:`_incidence_rows`, without forming ``A``.
+
+    A point's four rows are ``x1 (x) r_s (x) c_t`` (Kronecker products; ``r_s`` rows of ``[x2]x``, ``c_t``
+    columns of ``[x3]x``, s, t in {0, 1}), so their Gram sum factorises into ``x1 x1^T (x) G(x2) (x) G(x3)``
+    with :func:`_skew_gram`: about 4x faster than the rows for a few thousand points, the same to rounding.
+    """
+    n = len(x1)
+    h1 = homogeneous(x1)
+    a = (h1 if weights is None else h1 * weights[:, None])[:, :, None] * h1[:, None, :]  # (N, i, j)
+    b, c = _skew_gram(x2), _skew_gram(x3)  # (N, q, p), (N, r, u)
+    ab = (a[:, :, None, :, None] * b[:, None, :, None, :]).reshape(n, 81)  # (N, (i, q, j, p))
+    m = (ab.T @ c.reshape(n, 9)).reshape(3, 3, 3, 3, 3, 3)  # (i, q, j, p, r, u)
+    return m.transpose(0, 1, 4, 2, 3, 5).reshape(27, 27)
+
+
 def trifocal_residual(t: np.ndarray, x1: np.ndarray, x2: np.ndarray, x3: np.ndarray) -> np.ndarray:
     """Algebraic residual ``[x2]x (sum_i x1^i T_i) [x3]x`` (the 4 independent entries) per triplet: (N, 4)."""
     return _incidence_rows(x1, x2, x3) @ np.asarray(t, dtype=np.float64).reshape(27)
@@ -316,8 +343,8 @@ def trifocal_linear(
 ) -> np.ndarray:
     """Trifocal tensor from N >= 7 point triplets: the normalised linear algorithm ([HZ] Algorithm 16.1).
 
-    Each view is Hartley-normalised, the 4N x 27 system of point-point-point incidences is solved by SVD,
-    and with ``enforce`` the result is made geometrically valid by algebraic minimisation with the epipoles
+    Each view is Hartley-normalised, the 4N x 27 system of point-point-point incidences is solved in the
+    least-squares sense (the smallest eigenvector of its 27 x 27 normal matrix, :func:`_incidence_normal`), and with ``enforce`` the result is made geometrically valid by algebraic minimisation with the epipoles
     of the linear solution held fixed ([HZ] Algorithm 16.2 without the final Levenberg-Marquardt over the
     epipoles; [HZ] Algorithm A5.6). The tensor is denormalised to pixel coordinates.
 
@@ -339,11 +366,7 @@ def trifocal_linear(
     if len(x1) < 7:
         raise ValueError(f"trifocal_linear: need at least 7 point triplets, got {len(x1)}")
     (n1, t1), (n2, t2), (n3, t3) = (hartley_normalisation(x) for x in (x1, x2, x3))
-    a = _incidence_rows(n1, n2, n3)
-    if weights is not None:
-        a = a * np.sqrt(weights)[:, None, None]
-    a = a.reshape(-1, 27)
-    ata = a.T @ a
+    ata = _incidence_normal(n1, n2, n3, weights)
     _, vec = np.linalg.eigh(ata)
     t = vec[:, 0].reshape(3, 3, 3)
     if enforce:

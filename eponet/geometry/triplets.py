@@ -25,6 +25,10 @@ References
 .. [T98] P. H. S. Torr, "Geometric motion segmentation and model selection", Phil. Trans. R. Soc. A, 1998.
 .. [IA98] M. Irani and P. Anandan, "A unified approach to moving object detection in 2D and 3D scenes", IEEE
    TPAMI 20(6), 1998.
+.. [CWM05] O. Chum, T. Werner and J. Matas, "Two-view geometry estimation unaffected by a dominant plane",
+   CVPR 2005.
+.. [TZ00] P. H. S. Torr and A. Zisserman, "MLESAC: a new robust estimator with application to estimating image
+   geometry", CVIU 78, 2000.
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ from .homography import (
 )
 from .normalise import hartley_normalisation
 from .parallax import is_parallax, rigid_second_plane
-from .robust import gric, inlier_bound, robust_search, robust_sigma2
+from .robust import finite_median, gric, inlier_bound, robust_search, robust_sigma2
 from .trifocal import (
     fundamentals_from_trifocal,
     trifocal_linear,
@@ -72,8 +76,6 @@ __all__ = [
 
 #: Fewest point triplets (pairs) a fit is attempted with; fewer gives the "too few points" fallback.
 MIN_POINTS = 20
-#: At most about this many inliers enter a linear refit.
-_REFIT_POINTS = 3000
 #: Lower bound of the noise estimate in pixels (exact synthetic flow would otherwise give sigma = 0).
 SIGMA_FLOOR_PX = 0.01
 
@@ -84,7 +86,8 @@ class RobustSettings:
 
     ``threshold`` (pixels) is the inlier bound on the RMS first-order residual of one point (the Sampson
     distance for epipolar models, the transfer distance for homographies); None means "adaptive": LMedS
-    scoring and inliers within the 95% chi-square bound of the LMedS noise estimate ([HZ] Sec. 4.7).
+    scoring (the trifocal search: see ``epipolar_msac``) and inliers within the 95% chi-square bound of the
+    LMedS noise estimate ([HZ] Sec. 4.7).
 
     ``min_sigma`` (pixels) is the lowest noise level GRIC assumes. The robust estimate from the residuals of
     estimated flow is often far below the flow's real error (DIS: ~0.2-0.6 px, spatially correlated, which
@@ -94,6 +97,19 @@ class RobustSettings:
     trial counts assume the same floor (``min_sigma2`` of :func:`eponet.geometry.robust.robust_search`): one batch
     of 64 samples where the data allow instead of two to four; off, the count follows the LMedS noise estimate
     alone (eponet before 2026-12-05).
+
+    ``epipolar_msac`` (the default; with ``threshold`` None): the six-point search of the trifocal fit scores its
+    hypotheses by MSAC ([TZ00]) truncated at ``min_sigma`` (RMS per point) instead of by their median residual
+    (LMedS). When one plane holds more than half of the points (a far background behind near rigid
+    structure), every tensor compatible with that plane has the same near-zero median, whether or not it
+    explains the rest of the rigid scene ([CWM05]: the dominant-plane degeneracy), and LMedS picks among them
+    by chance; MSAC counts the points each tensor explains. The homography searches keep LMedS (a plane is
+    their model); the refits and the inlier bounds stay adaptive. Off, or with ``min_sigma`` 0: LMedS, as before
+    2026-12-05.
+
+    ``refit_points``: the linear refits after the search use an evenly spaced subset of about this many
+    inliers (fewer than twice as many); 27 (trifocal) or 9 (homography) unknowns are determined far beyond
+    the flow's noise by 1000 points, and the refits' cost grows with the points (3000 before 2026-12-05).
     """
 
     confidence: float = 0.99
@@ -101,6 +117,8 @@ class RobustSettings:
     threshold: float | None = None
     eval_points: int = 1000
     refine_iterations: int = 2
+    refit_points: int = 1000
+    epipolar_msac: bool = True
     min_sigma: float = 0.5
     trial_floor: bool = True
 
@@ -190,7 +208,7 @@ def _bound(e2: np.ndarray, dof: int, settings: RobustSettings) -> float:
 
 
 def _median(e2: np.ndarray) -> float:
-    return float(np.median(np.where(np.isfinite(e2), e2, np.inf)))
+    return finite_median(np.where(np.isfinite(e2), e2, np.inf))
 
 
 def _refine(fit_fn, resid_fn, model, e2, dof, settings: RobustSettings):
@@ -206,7 +224,7 @@ def _refine(fit_fn, resid_fn, model, e2, dof, settings: RobustSettings):
         if len(inl) < MIN_POINTS:
             break
         # an evenly spaced subset of the inliers suffices for the linear refit (no randomness needed)
-        inl = inl[:: max(1, len(inl) // _REFIT_POINTS)]
+        inl = inl[:: max(1, len(inl) // settings.refit_points)]
         try:
             cand = fit_fn(inl)
         except (ValueError, np.linalg.LinAlgError):
@@ -256,9 +274,13 @@ def fit_trifocal(x1, x2, x3, rng: np.random.Generator, settings: RobustSettings 
     def residual(fs, idx):
         return triplet_sampson_error(*fs, x1[idx], x2[idx], x3[idx])
 
+    if settings.threshold is not None:
+        threshold_sq = 3 * settings.threshold**2
+    else:  # MSAC at the noise floor (see RobustSettings.epipolar_msac), or LMedS without a floor
+        threshold_sq = 3 * settings.min_sigma**2 if settings.epipolar_msac and settings.min_sigma > 0 else None
     found = robust_search(
         solve, residual, len(x1), 6, rng, dof=3, confidence=settings.confidence,
-        max_trials=settings.max_trials, threshold_sq=None if settings.threshold is None else 3 * settings.threshold**2,
+        max_trials=settings.max_trials, threshold_sq=threshold_sq,
         eval_points=settings.eval_points, min_sigma2=_trial_sigma2(settings),
     )
     if found is None:

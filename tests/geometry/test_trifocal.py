@@ -142,6 +142,26 @@ def test_linear_fit_weights_select_points():
     assert np.abs(trifocal_transfer(t, x1[30:], x2[30:]) - x3[30:]).max() < 1e-6
 
 
+def test_linear_fit_normal_matrix_is_the_incidence_rows_gram():
+    # the linear fit's normal matrix is formed from per-point Kronecker factors, not from the 4N x 27 rows: the
+    # same matrix (weighted), and the same tensor as the rows' smallest right singular vector
+    from eponet.geometry.trifocal import _incidence_normal, _incidence_rows
+
+    rng = np.random.default_rng(8)
+    (x1, x2, x3), _ = _views(rng, n=200)
+    x1, x2, x3 = (x + rng.normal(0, 0.5, x.shape) for x in (x1, x2, x3))
+    w = rng.uniform(0, 2, len(x1))
+    rows = (_incidence_rows(x1, x2, x3) * np.sqrt(w)[:, None, None]).reshape(-1, 27)
+    expected = rows.T @ rows
+    assert np.abs(_incidence_normal(x1, x2, x3, w) - expected).max() < 1e-9 * np.abs(expected).max()
+    t = trifocal_linear(x1, x2, x3, enforce=False)
+    (n1, s1), (n2, s2), (n3, s3) = (hartley_normalisation(x) for x in (x1, x2, x3))
+    v = np.linalg.svd(_incidence_rows(n1, n2, n3).reshape(-1, 27))[2][-1].reshape(3, 3, 3)
+    v = transform_trifocal(v, np.linalg.inv(s1), np.linalg.inv(s2), np.linalg.inv(s3))
+    v /= np.linalg.norm(v)
+    assert min(np.abs(t - v).max(), np.abs(t + v).max()) < 1e-9
+
+
 def test_transform_roundtrip():
     rng = np.random.default_rng(8)
     t = rng.normal(size=(3, 3, 3))

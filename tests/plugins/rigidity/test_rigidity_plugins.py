@@ -187,16 +187,19 @@ def test_parallax_keeps_epipolar_model_for_near_rigid_structure():
     """The paper's Fig. 1: a camera passing near rigid rocks (6-10 px of parallax per frame) with a slow
     object behind them. GRIC takes the rocks for a second, independent plane and paints them with the
     largest distances; the default plane + parallax test keeps the trifocal model, so the rocks' ED stays
-    well below the object's."""
+    well below the object's. Whatever the RANSAC seed: the background plane holds about 70% of the points, and
+    a search scored by the median residual (LMedS) cannot tell the true tensor from one that fits that plane
+    alone (the dominant-plane degeneracy, [CWM05]), which before MSAC scoring lost 3 seeds of 6."""
     video, flow, traj = _scene(parallax_scene)
     rigid = ~video.masks
-    result = trifocal.TrifocalRigidity().score(traj, flow, np.random.default_rng(0))
-    models = [t["model"] for t in result.triplets]
-    assert models.count("trifocal") >= len(models) - 1, result.triplets
-    assert all(t["parallax"]["speed"] >= 2.0 for t in result.triplets if "parallax" in t)
-    auc = _mean_auc(result.ed, video.masks)
-    assert auc >= 0.95, auc
-    assert result.ed[rigid].mean() < 0.2 * result.ed[video.masks].mean()
+    for seed in range(6):
+        result = trifocal.TrifocalRigidity().score(traj, flow, np.random.default_rng(seed))
+        models = [t["model"] for t in result.triplets]
+        assert models.count("trifocal") >= len(models) - 1, (seed, result.triplets)
+        assert all(t["parallax"]["speed"] >= 2.0 for t in result.triplets if "parallax" in t)
+        auc = _mean_auc(result.ed, video.masks)
+        assert auc >= 0.95, (seed, auc)
+        assert result.ed[rigid].mean() < 0.2 * result.ed[video.masks].mean()
     # today's GRIC alone (kept for the ablation) fails exactly here
     gric = trifocal.TrifocalRigidity(degeneracy="gric").score(traj, flow, np.random.default_rng(0))
     assert all(t["model"] == "homography" for t in gric.triplets)
