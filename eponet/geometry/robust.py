@@ -170,8 +170,9 @@ def robust_search(
     ``min(e^2, threshold_sq)`` ([TZ00]). The number of trials adapts to the inlier ratio of the best model
     so far (inliers: ``e^2`` below the threshold, or below ``chi^2_dof(0.95)`` times the LMedS variance) as
     in [HZ] Algorithm 4.5, capped at ``max_trials``; the LMedS variance is taken as at least ``min_sigma2``
-    there, and the threshold as at least that variance's 95% bound (the count only, not the scores). Within a batch, hypotheses are first ranked on 100 of
-    the evaluation points and only the best 12 are scored on all of them (preemptive scoring, [N03]).
+    there, and the threshold as at least that variance's 95% bound (the count only, not the scores). Within a
+    batch, hypotheses are first ranked on 100 of the evaluation points and only the best 12 are scored on all of
+    them (preemptive scoring, [N03]).
 
     Parameters
     ----------

@@ -344,7 +344,8 @@ def trifocal_linear(
     """Trifocal tensor from N >= 7 point triplets: the normalised linear algorithm ([HZ] Algorithm 16.1).
 
     Each view is Hartley-normalised, the 4N x 27 system of point-point-point incidences is solved in the
-    least-squares sense (the smallest eigenvector of its 27 x 27 normal matrix, :func:`_incidence_normal`), and with ``enforce`` the result is made geometrically valid by algebraic minimisation with the epipoles
+    least-squares sense (the smallest eigenvector of its 27 x 27 normal matrix, :func:`_incidence_normal`), and
+    with ``enforce`` the result is made geometrically valid by algebraic minimisation with the epipoles
     of the linear solution held fixed ([HZ] Algorithm 16.2 without the final Levenberg-Marquardt over the
     epipoles; [HZ] Algorithm A5.6). The tensor is denormalised to pixel coordinates.
 
