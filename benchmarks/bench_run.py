@@ -106,7 +106,14 @@ def run_cli(spec: dict, folder: Path, quiet: bool = True, prefix: tuple = (), cu
     return {"frames": frames, "wall_s": wall, "fps": frames / wall, "cpu_percent": 100 * cpu / wall,
             # ru_maxrss of RUSAGE_CHILDREN is the largest single descendant (KiB on Linux)
             "peak_rss_mb": after.ru_maxrss / 1024, "stages_s": stages, "workers": manifest.get("workers"),
+            "resolved": manifest.get("resolved", {}),
             "rss_curve": [(k * curve, mb) for k, mb in sorted(peaks.items()) if mb > 0]}
+
+
+def resolved_note(result: dict) -> str:
+    """What the run's stages resolved at build (e.g. the motion net's device and precision), for the report."""
+    parts = [f"{kind} {', '.join(f'{k} {v}' for k, v in values.items())}" for kind, values in result["resolved"].items()]
+    return f"; resolved: {'; '.join(parts)}" if parts else ""
 
 
 def long_video(folder: Path, files: list[Path], length: int) -> Path:
@@ -204,7 +211,8 @@ def main() -> int:
                                sorted(result["stages_s"].items(), key=lambda kv: -kv[1]))
             print(f"  workers {workers} ({result['workers']} processes): {result['fps']:.2f} frames/s = {ms:.0f} ms/frame "
                   f"= {ms / r1:.1f} R1 ({ms / rn:.1f} Rn); CPU {result['cpu_percent']:.0f}%; peak RSS "
-                  f"{result['peak_rss_mb']:.0f} MB; wall {result['wall_s']:.1f} s; stage time: {shares}")
+                  f"{result['peak_rss_mb']:.0f} MB; wall {result['wall_s']:.1f} s; stage time: {shares}"
+                  f"{resolved_note(result)}")
         if "auto" in results and 1 in results:
             print(f"  speed-up auto / 1: {results['auto']['fps'] / results[1]['fps']:.2f}x")
         lengths = [int(v) for v in args.lengths.split(",") if v]

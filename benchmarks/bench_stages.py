@@ -12,7 +12,8 @@ default 1), after a warm-up batch:
   :class:`~eponet.nets.InferenceUNet`), in float32 and under ``precision: bfloat16``. The motion images are
   random: a convolution's cost does not depend on the values. Also the compute floor: both networks'
   multiply-adds per frame at the rate this CPU multiplies large float32 matrices on the same threads.
-- ``flow``: the presets' flow (``dis``, ``medium`` with ``finest_scale: 0``) forward + backward per frame, and
+- ``flow``: the presets' flow (``dis``, ``medium`` with ``finest_scale: 0``) forward + backward per frame, the
+  same with sparser patches (``patch_stride`` 5 and 6 instead of 3) and fewer variational refinements, and
   OpenCV's own ``medium`` (``finest_scale: null``, which is R's computation) through the same stage.
 - ``rigidity``: the presets' trifocal stage on the dense trajectories of the frames (DIS flow, not timed), with
   numpy's BLAS on one thread, as runs hold it, and on every core; and on one thread with the robust settings of
@@ -133,6 +134,17 @@ def sgemm_flops(n: int = 1536) -> float:
     return 2 * n**3 / best
 
 
+#: The ``dis`` flow settings ``--stages flow`` times (on top of ``preset: medium``).
+FLOW_VARIANTS = {
+    "dis medium, finest_scale 0 (presets)": {"finest_scale": 0},
+    "dis medium, finest_scale 0, patch_stride 5": {"finest_scale": 0, "patch_stride": 5},
+    "dis medium, finest_scale 0, patch_stride 6": {"finest_scale": 0, "patch_stride": 6},
+    "dis medium, finest_scale 0, stride 5, 3 refinements": {"finest_scale": 0, "patch_stride": 5,
+                                                             "refinement_iterations": 3},
+    "dis medium, finest_scale null": {"finest_scale": None},
+}
+
+
 def bench_flow(frames: list[np.ndarray]) -> dict[str, float]:
     from eponet.core.types import Video
     from eponet.plugins.flow.dis import DisFlow
@@ -140,8 +152,8 @@ def bench_flow(frames: list[np.ndarray]) -> dict[str, float]:
     small = np.stack([cv2.resize(f, SIZE, interpolation=cv2.INTER_AREA) for f in frames])
     video = Video("bench", small, [f"{t:05d}" for t in range(len(small))], small.shape[1:3])
     figures = {}
-    for label, finest in (("dis medium, finest_scale 0 (presets)", 0), ("dis medium, finest_scale null", None)):
-        stage = DisFlow(preset="medium", finest_scale=finest)
+    for label, settings in FLOW_VARIANTS.items():
+        stage = DisFlow(preset="medium", **settings)
         figures[label] = _timed(lambda: stage.estimate(video), len(frames) - 1)
     return figures
 
@@ -251,7 +263,7 @@ def main() -> int:
     for stage, figures in results.items():
         print(stage)
         for name, ms in figures.items():
-            print(f"  {name:<44} {ms:8.1f} ms {ms / reference:6.2f} R")
+            print(f"  {name:<52} {ms:8.1f} ms {ms / reference:6.2f} R")
     return 0
 
 

@@ -71,29 +71,38 @@ def load_sequence(name: str, frames: int | None = None, root: Path = DAVIS):
     return gray, np.stack(masks)
 
 
-def dis_flow(gray: np.ndarray):
+def dis_flow(gray: np.ndarray, flow: dict | None = None):
+    """Forward and backward DIS flow of grey frames (F, H, W); ``flow``: settings of the ``dis`` flow stage
+    (default: OpenCV's ``medium`` preset as it is, finest level 1)."""
     from eponet.core.types import FlowPair
+    from eponet.plugins.flow.dis import DisFlow
 
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    dis = DisFlow(**(flow or {})).create()
     fw = np.stack([dis.calc(gray[t], gray[t + 1], None) for t in range(len(gray) - 1)])
     bw = np.stack([dis.calc(gray[t + 1], gray[t], None) for t in range(len(gray) - 1)])
     return FlowPair(fw.astype(np.float32), bw.astype(np.float32))
 
 
+def flow_tag(flow: dict | None) -> str:
+    """The part of a flow cache's file name that tells its settings apart (empty for the default)."""
+    return "".join(f"_{k}{v}" for k, v in sorted((flow or {}).items()))
+
+
 def sequence_auc(name: str, variants=VARIANTS, frames: int | None = None, flow_cache: Path | None = None,
-                 seed: int = 0, root: Path = DAVIS, trajectories: dict | None = None) -> dict:
+                 seed: int = 0, root: Path = DAVIS, trajectories: dict | None = None, flow: dict | None = None) -> dict:
     """Mean per-frame ROC AUC of each variant's ED for one sequence (and timings); ``trajectories``: settings of
-    the ``dense`` trajectory stage."""
+    the ``dense`` trajectory stage, ``flow``: of the ``dis`` flow stage (see :func:`dis_flow`)."""
     from eponet.core.types import FlowPair
     from eponet.plugins.trajectories.dense import DenseTrajectories
 
+    settings = flow
     gray, masks = load_sequence(name, frames, root)
-    cached = flow_cache / f"{name}_{len(gray)}.npz" if flow_cache else None
+    cached = flow_cache / f"{name}_{len(gray)}{flow_tag(settings)}.npz" if flow_cache else None
     if cached is not None and cached.exists():
         data = np.load(cached)
         flow = FlowPair(data["forward"], data["backward"])
     else:
-        flow = dis_flow(gray)
+        flow = dis_flow(gray, settings)
         if cached is not None:
             cached.parent.mkdir(parents=True, exist_ok=True)
             np.savez(cached, forward=flow.forward, backward=flow.backward)

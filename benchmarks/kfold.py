@@ -28,7 +28,11 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus-seed1 --seeds 0,1 --seed 1
         # the same networks with another RANSAC / self-training seed: how far the figures move by chance
     python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--trajectories cull_collisions=true] \
-        [--flow-cache DIR]
+        [--flow finest_scale=0] [--flow-cache DIR]
+        # the ED on OpenCV's DIS medium as it is (finest level 1), or with the dis stage's settings
+        # (finest_scale=0: the presets' flow)
+    python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-epo-bf16 --motion-net precision=bfloat16
+        # the same networks with other motion-net (--motion-net) or flow (--flow patch_stride=5) settings
     python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-epo-pair --seeds 0,1
         # the epo preset as it ships: the mean of two networks per fold (seeds 0 and 1; seed 1's are trained
         # into fold<i>/seed1 of --weights)
@@ -113,8 +117,10 @@ def _finite(value):
 
 
 def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, trajectories: dict | None = None,
-           seed: int = 0) -> dict[str, dict]:
-    """ED ROC AUC per sequence (no training, so the folds only label the rows), the stage seeded with ``seed``."""
+           seed: int = 0, flow: dict | None = None) -> dict[str, dict]:
+    """ED ROC AUC per sequence (no training, so the folds only label the rows), the stage seeded with ``seed``;
+    ``flow``: settings of the ``dis`` flow stage (default: OpenCV's ``medium`` as it is, finest level 1, where the
+    presets run level 0: ``finest_scale=0``)."""
     import logging
 
     import geometry_davis_auc as g
@@ -125,7 +131,8 @@ def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, traj
     out = {}
     for i, names in enumerate(split):
         for name in names:
-            r = g.sequence_auc(name, ("default",), flow_cache=flow_cache, trajectories=trajectories, seed=seed)
+            r = g.sequence_auc(name, ("default",), flow_cache=flow_cache, trajectories=trajectories, seed=seed,
+                               flow=flow)
             out[name] = {"fold": i, "AUC": r["default"], "models": r["default_models"]}
             print(f"  {name:<18} AUC {r['default']:.3f} {r['default_models']}", flush=True)
     return out
@@ -154,7 +161,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             weights: Path | None = None, save: tuple[str, ...] = ("masks",), preset: str = "epo",
             fusion: dict | None = None, plus: bool = False, recipe_rigidity: dict | None = None,
             run: dict | None = None, only: set[str] | None = None, trajectories: dict | None = None,
-            seeds: tuple[int, ...] = (0,), crf_settings: dict | None = None, run_seed: int = 0) -> dict[str, dict]:
+            seeds: tuple[int, ...] = (0,), crf_settings: dict | None = None, run_seed: int = 0,
+            flow: dict | None = None, motion_net: dict | None = None) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
@@ -162,7 +170,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     train each fold's EpO+ fusion on that fold's frozen network (into ``out/fold<i>/fusion``) and score the
     ``epo+`` preset with both. ``run``: the spec's ``run`` settings; ``only``: score these sequences only;
     ``crf_settings``: merged onto the refiner (the preset's, or the one ``refiner`` names); ``run_seed``: the held-out
-    runs' spec seed (RANSAC, self-training), not the networks'."""
+    runs' spec seed (RANSAC, self-training), not the networks'; ``flow``, ``motion_net``: settings merged onto the
+    preset's flow stage and onto the fold's motion network when scoring."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
@@ -202,11 +211,14 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     per_sequence = {}
     for i in which:
         paths = [str(path) for path in nets(i)]
-        stages = {"motion_net": {"plugin": "epo_unet", "weights": paths if len(paths) > 1 else paths[0]}}
+        stages = {"motion_net": {"plugin": "epo_unet", "weights": paths if len(paths) > 1 else paths[0],
+                                 **(motion_net or {})}}
         if rigidity:
             stages["rigidity"] = {"plugin": "trifocal", **rigidity}
         if trajectories:
             stages["trajectories"] = {"plugin": "dense", **trajectories}
+        if flow:
+            stages["flow"] = {"plugin": "dis", **flow}
         if crf is not None:
             stages["refiner"] = crf
         if plus:
@@ -253,6 +265,11 @@ def main(argv=None) -> int:
                         help="epo: key=value settings of the spec's run section (e.g. ed_window=null)")
     parser.add_argument("--sequences", default=None,
                         help="epo: comma-separated sequences to score (default: every sequence of the folds)")
+    parser.add_argument("--flow", nargs="*", default=[],
+                        help="key=value settings of the dis flow stage (ed: default OpenCV's medium, finest level 1; "
+                        "epo: merged onto the preset's, finest_scale 0), e.g. finest_scale=0 patch_stride=5")
+    parser.add_argument("--motion-net", nargs="*", default=[],
+                        help="epo: key=value settings of the fold's epo_unet stage, e.g. precision=bfloat16")
     parser.add_argument("--flow-cache", type=Path, default=None)
     parser.add_argument("--seed", type=int, default=0,
                         help="the rigidity stage's seed (ed), or the held-out runs' spec seed (epo, epo+: RANSAC, "
@@ -278,9 +295,10 @@ def main(argv=None) -> int:
         print(f"fold {i}: {', '.join(split[i])}")
     rigidity = key_values(args.rigidity)
     trajectories = key_values(args.trajectories)
+    flow = key_values(args.flow)
     if args.what == "ed":
         per_sequence = run_ed([split[i] if i in which else [] for i in range(len(split))], rigidity, args.flow_cache,
-                              trajectories, args.seed)
+                              trajectories, args.seed, flow)
         measures = ("AUC",)
         meta = {"rigidity": rigidity}
     else:
@@ -293,7 +311,7 @@ def main(argv=None) -> int:
         crf = key_values(args.crf)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
-                               trajectories, seeds, crf, args.seed)
+                               trajectories, seeds, crf, args.seed, flow, key_values(args.motion_net))
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -312,6 +330,10 @@ def main(argv=None) -> int:
         meta["seed"] = args.seed
     if trajectories:  # (kept out of the default's record: earlier reports still merge)
         meta["trajectories"] = trajectories
+    if flow:  # (kept out of the default's record: earlier reports still merge)
+        meta["flow"] = flow
+    if args.motion_net:  # (kept out of the default's record: earlier reports still merge)
+        meta["motion_net"] = key_values(args.motion_net)
     previous = out / "kfold.json"
     if previous.is_file():  # folds scored by an earlier call with the same settings are kept
         earlier = json.loads(previous.read_text())

@@ -331,7 +331,8 @@ class Pipeline:
 
     def record(self, invocation: dict | None = None, started: float | None = None) -> dict:
         """What ``run.json`` says about the run besides its sequences: versions, the resolved spec and cache,
-        ``invocation`` as given, seed, plugins, weights digests, libraries and the start time."""
+        ``invocation`` as given, seed, plugins, weights digests, what stages resolved at build (a stage's
+        ``resolved`` dict, e.g. the motion net's device and precision), libraries and the start time."""
         spec = self.spec
         started = time.time() if started is None else started
         return {
@@ -343,6 +344,8 @@ class Pipeline:
             "plugins": {kind: {"plugin": c.plugin, "package": c.spec.package, "version": c.spec.version,
                                "params": c.params} for kind, c in spec.stages.items()},
             "weights_sha256": self.weights_digests(),
+            "resolved": {kind: dict(stage.resolved) for kind, stage in self.stages.items()
+                         if isinstance(getattr(stage, "resolved", None), dict)},
             "libraries": library_versions(),
             "started": datetime.fromtimestamp(started, timezone.utc).isoformat(timespec="seconds"),
         }

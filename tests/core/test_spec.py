@@ -18,12 +18,15 @@ def _flow_only(frames_dir, out, **extra):
     return doc
 
 
+FLOW = {"preset": "medium", "finest_scale": 0, "patch_stride": None, "refinement_iterations": None}
+
+
 def test_valid_spec_resolves_defaults(frames_dir, tmp_path):
     spec = parse_spec(_flow_only(frames_dir, tmp_path / "out"))
     assert list(spec.stages) == ["flow"]
-    assert spec.stages["flow"].plugin == "dis" and spec.stages["flow"].params == {"preset": "medium", "finest_scale": 0}
+    assert spec.stages["flow"].plugin == "dis" and spec.stages["flow"].params == FLOW
     assert spec.input.scale == 1.0 and spec.input.resolution == "480p" and spec.seed == 0
-    assert spec.document["stages"] == {"flow": {"plugin": "dis", "preset": "medium", "finest_scale": 0}}
+    assert spec.document["stages"] == {"flow": {"plugin": "dis", **FLOW}}
 
 
 def test_every_problem_is_reported_at_once(frames_dir, tmp_path):
@@ -56,9 +59,9 @@ def test_every_problem_is_reported_at_once(frames_dir, tmp_path):
 def test_preset_override_merges_parameters(frames_dir, tmp_path):
     doc = _flow_only(frames_dir, tmp_path / "o")
     doc["stages"]["flow"] = {"preset": "fast"}
-    assert parse_spec(doc).stages["flow"].params == {"preset": "fast", "finest_scale": 0}
+    assert parse_spec(doc).stages["flow"].params == {**FLOW, "preset": "fast"}
     doc["stages"]["flow"] = {"finest_scale": None}  # back to OpenCV's own finest level for the preset
-    assert parse_spec(doc).stages["flow"].params == {"preset": "medium", "finest_scale": None}
+    assert parse_spec(doc).stages["flow"].params == {**FLOW, "finest_scale": None}
     doc["stages"]["flow"] = {"plugin": "farneback", "levels": 3}
     params = parse_spec(doc).stages["flow"].params
     assert params["levels"] == 3 and params["winsize"] == 15 and "preset" not in params

@@ -209,6 +209,7 @@ def test_interrupted_run_resumes_with_identical_outputs(tmp_path, monkeypatch):
     assert _files(tmp_path / "out") == reference
     run = json.loads((tmp_path / "out" / "run.json").read_text())
     assert len(run["weights_sha256"]["motion_net"]) == 2 and all(len(d) == 64 for d in run["weights_sha256"]["motion_net"])
+    assert run["resolved"]["motion_net"]["precision"] in ("float32", "bfloat16")  # what `auto` became, if asked
 
 
 def test_masks_do_not_depend_on_the_number_of_workers(tmp_path):

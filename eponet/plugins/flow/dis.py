@@ -23,16 +23,30 @@ class DisFlow:
 
     ``finest_scale`` overrides the preset's finest pyramid level (0: the frame itself; OpenCV's ``medium``
     stops at 1, half the frame size, and ``fast``/``ultrafast`` at 2), e.g. 0 for sharper object boundaries
-    at about three times the cost."""
+    at about three times the cost. ``patch_stride`` (px between the patches searched; ``medium``: 3) and
+    ``refinement_iterations`` (fixed-point iterations of the variational refinement at every level;
+    ``medium``: 5) override the preset's: the patch search's cost falls with the square of the stride."""
 
-    def __init__(self, *, preset: str = "medium", finest_scale: int | None = None):
+    def __init__(self, *, preset: str = "medium", finest_scale: int | None = None, patch_stride: int | None = None,
+                 refinement_iterations: int | None = None):
         self.preset = preset
         self.finest_scale = finest_scale
+        self.patch_stride = patch_stride
+        self.refinement_iterations = refinement_iterations
 
-    def estimate(self, video):
+    def create(self) -> cv2.DISOpticalFlow:
+        """A configured OpenCV DIS object (one per thread: it keeps buffers between calls)."""
         dis = cv2.DISOpticalFlow_create(PRESETS[self.preset])
         if self.finest_scale is not None:
             dis.setFinestScale(self.finest_scale)
+        if self.patch_stride is not None:
+            dis.setPatchStride(self.patch_stride)
+        if self.refinement_iterations is not None:
+            dis.setVariationalRefinementIterations(self.refinement_iterations)
+        return dis
+
+    def estimate(self, video):
+        dis = self.create()
         return pairwise_flow(video, lambda a, b: dis.calc(a, b, None), desc="flow (dis)")
 
 
@@ -47,6 +61,11 @@ def eponet_stages():
                 Param("preset", "choice", "medium", "OpenCV DIS preset (speed/accuracy)", choices=tuple(PRESETS)),
                 Param("finest_scale", "int", None, "finest pyramid level, 0 = full frame size (default: the preset's)",
                       minimum=0, maximum=6, nullable=True),
+                Param("patch_stride", "int", None, "pixels between searched patches (default: the preset's, 3 for "
+                      "medium; at most the presets' patch size, 8)", minimum=1, maximum=8, nullable=True),
+                Param("refinement_iterations", "int", None, "fixed-point iterations of the variational refinement "
+                      "per level (default: the preset's, 5 for medium; 0: none)", minimum=0, maximum=100,
+                      nullable=True),
             ),
             doc="OpenCV DIS optical flow (default; preset medium forward+backward is R, the benchmarks' speed unit)",
         )

@@ -6,6 +6,7 @@ import logging
 
 import numpy as np
 
+from eponet.core.devices import DEVICES, PRECISIONS, resolve_precision, torch_device
 from eponet.core.errors import MissingWeights, SpecError
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.motion import mirror_motion_images
@@ -34,14 +35,6 @@ def load_unet(weights: str, sha256: str | None = None):
     return model.eval(), digest
 
 
-def _device(name: str):
-    import torch
-
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
-
-
 def _weights_list(weights: str | list[str], sha256: str | list[str] | None) -> list[tuple[str, str | None]]:
     """Pairs (weights, expected sha256 or None) of a stage's ``weights`` and ``sha256`` parameters."""
     names = weights if isinstance(weights, list) else [weights]
@@ -65,7 +58,9 @@ class EpoUNetStage:
     augmentation, twice the cost). Each network runs as its :class:`~eponet.nets.InferenceUNet` (BatchNorm
     folded into the convolutions: the same probabilities to float32 rounding, in less time); ``precision:
     bfloat16`` runs it under bfloat16 autocast (about twice as fast on CPUs with AMX or AVX-512 BF16 and on
-    GPUs; far slower on CPUs without them; probabilities within a few hundredths of float32's).
+    GPUs; far slower on CPUs without them; probabilities within a few hundredths of float32's); ``auto`` chooses
+    bfloat16 on a CPU that has them (:func:`~eponet.core.devices.native_bfloat16`) and float32 otherwise
+    (:attr:`resolved` holds the choice, which ``run.json`` records).
     """
 
     def __init__(self, *, weights: str | list[str] = "epo-davis", sha256: str | list[str] | None = None,
@@ -77,9 +72,10 @@ class EpoUNetStage:
         digests = [digest for _, digest in loaded]
         self.sha256 = digests if isinstance(weights, list) else digests[0]
         self.batch_size = batch_size
-        self.device = _device(device)
+        self.device = torch_device(device)
         self.flip = flip
-        self.precision = precision
+        self.precision = resolve_precision(precision, self.device)
+        self.resolved = {"device": str(self.device), "precision": self.precision}
 
     def predict(self, motion_images: np.ndarray) -> np.ndarray:
         import torch
@@ -134,12 +130,13 @@ def eponet_stages():
                 Param("sha256", "str", None, "expected sha256 of the weights file (checked before loading); one per "
                       "file for a list", nullable=True, many=True),
                 Param("batch_size", "int", 8, "frames per inference batch", minimum=1),
-                Param("device", "choice", "auto", "where to run: auto = GPU when available", choices=("auto", "cpu", "cuda")),
+                Param("device", "choice", "auto", "where to run: auto = GPU when available", choices=DEVICES),
                 Param("flip", "bool", False, "test-time augmentation: average with the prediction on the mirrored "
                       "motion images (dx negated); twice the cost"),
                 Param("precision", "choice", "float32", "arithmetic of the networks: bfloat16 is about 2x faster "
                       "on CPUs with AMX / AVX-512 BF16 and on GPUs (probabilities within a few hundredths), "
-                      "far slower on other CPUs", choices=("float32", "bfloat16")),
+                      "far slower on other CPUs; auto = bfloat16 on CPUs that have it, else float32",
+                      choices=PRECISIONS),
             ),
             doc="EpO U-Net motion network on (dx, dy, ED) motion images",
             check=_check,

@@ -21,7 +21,9 @@ def _epe(flow, gt):
 
 
 @pytest.mark.parametrize("stage, bound", [(DisFlow(preset="medium"), 0.30), (DisFlow(preset="ultrafast"), 0.65),
-                                          (DisFlow(preset="medium", finest_scale=0), 0.15), (FarnebackFlow(), 0.45)])
+                                          (DisFlow(preset="medium", finest_scale=0), 0.15),
+                                          (DisFlow(preset="medium", finest_scale=0, patch_stride=5), 0.15),
+                                          (FarnebackFlow(), 0.45)])
 def test_middlebury_rubberwhale_endpoint_error(shared_data, stage, bound):
     root = shared_data / "flow-gt" / "middlebury" / "RubberWhale"
     flow = stage.estimate(_pair(root / "frame10.png", root / "frame11.png"))
@@ -35,6 +37,13 @@ def test_dis_finest_scale_zero_halves_the_rubberwhale_error(shared_data):
     coarse = _epe(DisFlow(preset="medium").estimate(video).forward[0], gt)  # OpenCV's medium stops at level 1
     fine = _epe(DisFlow(preset="medium", finest_scale=0).estimate(video).forward[0], gt)
     assert fine < 0.6 * coarse
+
+
+def test_dis_settings_reach_opencv_and_default_to_the_preset():
+    dis = DisFlow(finest_scale=0, patch_stride=5, refinement_iterations=2).create()
+    assert (dis.getFinestScale(), dis.getPatchStride(), dis.getVariationalRefinementIterations()) == (0, 5, 2)
+    preset = DisFlow().create()
+    assert (preset.getFinestScale(), preset.getPatchStride(), preset.getVariationalRefinementIterations()) == (1, 3, 5)
 
 
 @pytest.mark.parametrize("pair", ["0000003", "0000006"])

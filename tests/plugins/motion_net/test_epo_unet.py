@@ -156,3 +156,15 @@ def test_bfloat16_precision_stays_close_to_float32():
     assert half.dtype == np.float32 and half.shape == full.shape
     assert 0 < np.abs(half - full).max() < 0.1  # bfloat16 has 8 bits of mantissa: close, not equal
     assert np.mean((half > 0.5) != (full > 0.5)) < 0.01
+
+
+def test_auto_precision_is_what_the_cpu_does_natively_and_is_recorded(monkeypatch):
+    import eponet.core.devices as devices
+
+    motion = np.random.default_rng(3).random((2, 3, 48, 80), dtype=np.float32) * 2 - 0.5
+    for native, expected in ((True, "bfloat16"), (False, "float32")):
+        monkeypatch.setattr(devices, "native_bfloat16", lambda native=native: native)
+        auto = EpoUNetStage(weights="epo-davis", device="cpu", precision="auto")
+        assert auto.resolved == {"device": "cpu", "precision": expected}
+        same = EpoUNetStage(weights="epo-davis", device="cpu", precision=expected)
+        np.testing.assert_array_equal(auto.predict(motion), same.predict(motion))
