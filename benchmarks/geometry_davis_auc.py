@@ -89,20 +89,20 @@ def flow_tag(flow: dict | None) -> str:
 
 
 def sequence_auc(name: str, variants=VARIANTS, frames: int | None = None, flow_cache: Path | None = None,
-                 seed: int = 0, root: Path = DAVIS, trajectories: dict | None = None, flow: dict | None = None) -> dict:
+                 seed: int = 0, root: Path = DAVIS, trajectories: dict | None = None,
+                 flow_settings: dict | None = None) -> dict:
     """Mean per-frame ROC AUC of each variant's ED for one sequence (and timings); ``trajectories``: settings of
-    the ``dense`` trajectory stage, ``flow``: of the ``dis`` flow stage (see :func:`dis_flow`)."""
+    the ``dense`` trajectory stage, ``flow_settings``: of the ``dis`` flow stage (see :func:`dis_flow`)."""
     from eponet.core.types import FlowPair
     from eponet.plugins.trajectories.dense import DenseTrajectories
 
-    settings = flow
     gray, masks = load_sequence(name, frames, root)
-    cached = flow_cache / f"{name}_{len(gray)}{flow_tag(settings)}.npz" if flow_cache else None
+    cached = flow_cache / f"{name}_{len(gray)}{flow_tag(flow_settings)}.npz" if flow_cache else None
     if cached is not None and cached.exists():
         data = np.load(cached)
         flow = FlowPair(data["forward"], data["backward"])
     else:
-        flow = dis_flow(gray, settings)
+        flow = dis_flow(gray, flow_settings)
         if cached is not None:
             cached.parent.mkdir(parents=True, exist_ok=True)
             np.savez(cached, forward=flow.forward, backward=flow.backward)

@@ -132,7 +132,7 @@ def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, traj
     for i, names in enumerate(split):
         for name in names:
             r = g.sequence_auc(name, ("default",), flow_cache=flow_cache, trajectories=trajectories, seed=seed,
-                               flow=flow)
+                               flow_settings=flow)
             out[name] = {"fold": i, "AUC": r["default"], "models": r["default_models"]}
             print(f"  {name:<18} AUC {r['default']:.3f} {r['default_models']}", flush=True)
     return out
@@ -296,6 +296,7 @@ def main(argv=None) -> int:
     rigidity = key_values(args.rigidity)
     trajectories = key_values(args.trajectories)
     flow = key_values(args.flow)
+    motion_net = key_values(args.motion_net)
     if args.what == "ed":
         per_sequence = run_ed([split[i] if i in which else [] for i in range(len(split))], rigidity, args.flow_cache,
                               trajectories, args.seed, flow)
@@ -311,7 +312,7 @@ def main(argv=None) -> int:
         crf = key_values(args.crf)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
-                               trajectories, seeds, crf, args.seed, flow, key_values(args.motion_net))
+                               trajectories, seeds, crf, args.seed, flow, motion_net)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -332,8 +333,8 @@ def main(argv=None) -> int:
         meta["trajectories"] = trajectories
     if flow:  # (kept out of the default's record: earlier reports still merge)
         meta["flow"] = flow
-    if args.motion_net:  # (kept out of the default's record: earlier reports still merge)
-        meta["motion_net"] = key_values(args.motion_net)
+    if motion_net:  # (kept out of the default's record: earlier reports still merge)
+        meta["motion_net"] = motion_net
     previous = out / "kfold.json"
     if previous.is_file():  # folds scored by an earlier call with the same settings are kept
         earlier = json.loads(previous.read_text())

@@ -75,7 +75,11 @@ class EpoUNetStage:
         self.device = torch_device(device)
         self.flip = flip
         self.precision = resolve_precision(precision, self.device)
-        self.resolved = {"device": str(self.device), "precision": self.precision}
+
+    @property
+    def resolved(self) -> dict:
+        """What ``device`` and ``precision`` became on this machine (``run.json`` records it)."""
+        return {"device": str(self.device), "precision": self.precision}
 
     def predict(self, motion_images: np.ndarray) -> np.ndarray:
         import torch
