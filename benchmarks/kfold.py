@@ -162,11 +162,12 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             fusion: dict | None = None, plus: bool = False, recipe_rigidity: dict | None = None,
             run: dict | None = None, only: set[str] | None = None, trajectories: dict | None = None,
             seeds: tuple[int, ...] = (0,), crf_settings: dict | None = None, run_seed: int = 0,
-            flow: dict | None = None, motion_net: dict | None = None) -> dict[str, dict]:
+            flow: dict | None = None, motion_net: dict | None = None, recipe_model: dict | None = None) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
-    (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns). ``plus``: then
+    (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns;
+    ``recipe_model``: onto its ``model`` section, e.g. ``flow_centring``). ``plus``: then
     train each fold's EpO+ fusion on that fold's frozen network (into ``out/fold<i>/fusion``) and score the
     ``epo+`` preset with both. ``run``: the spec's ``run`` settings; ``only``: score these sequences only;
     ``crf_settings``: merged onto the refiner (the preset's, or the one ``refiner`` names); ``run_seed``: the held-out
@@ -178,6 +179,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     def recipe(i, seed):
         doc = recipe_without(split[i])
         doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})
+        doc["model"].update(recipe_model or {})
         doc["seed"] = seed
         return doc
 
@@ -256,6 +258,8 @@ def main(argv=None) -> int:
                         help="key=value settings of the dense trajectory stage (ed and epo), e.g. cull_collisions=true")
     parser.add_argument("--recipe-rigidity", nargs="*", default=[],
                         help="key=value merged onto the training recipe's rigidity stage (the ED the folds learn)")
+    parser.add_argument("--recipe-model", nargs="*", default=[],
+                        help="key=value merged onto the training recipe's model section, e.g. flow_centring=rigid")
     parser.add_argument("--seeds", default="0",
                         help="epo: comma-separated training seeds; the held-out sequences run the mean of the seeds' "
                         "networks (0,1: the epo preset's pair; the first seed's are fold<i>/weights.pt)")
@@ -312,11 +316,13 @@ def main(argv=None) -> int:
         crf = key_values(args.crf)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
-                               trajectories, seeds, crf, args.seed, flow, motion_net)
+                               trajectories, seeds, crf, args.seed, flow, motion_net, key_values(args.recipe_model))
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
             meta["recipe_rigidity"] = recipe_rigidity
+        if args.recipe_model:
+            meta["recipe_model"] = key_values(args.recipe_model)
         if run:
             meta["run"] = run
         if crf:  # (kept out of the default's record: earlier reports still merge)

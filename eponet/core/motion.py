@@ -15,6 +15,7 @@ from .types import FlowPair
 __all__ = [
     "FLOW_SCALE",
     "ED_ENCODINGS",
+    "FLOW_CENTRINGS",
     "ED_PERCENTILE",
     "ED_TARGET",
     "ED_FLOOR_PX",
@@ -38,6 +39,10 @@ FLOW_SCALE = 20.0
 #: as the original's uint8 images did, or ``log``: unchanged up to 1, ``1 + ln(ED)`` above, which keeps the ED
 #: of small fast objects (often tens of times the percentile) apart from the background's (:func:`encode_ed`).
 ED_ENCODINGS = ("clip", "log")
+
+#: What a motion network subtracts from each frame's flow channels (``eponet.nets.unet.centre_flow``): nothing (the
+#: paper), or ``rigid``: the median flow of the frame's pixels whose ED is at most the frame's median ED.
+FLOW_CENTRINGS = ("none", "rigid")
 
 #: Percentile of the ED values around a frame that sets its scale.
 ED_PERCENTILE = 95.0

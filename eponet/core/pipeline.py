@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from importlib import metadata
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -27,7 +28,7 @@ from .outputs import SequenceOutputs, SequenceWriter, remove_partials
 from . import progress
 from .sanity import SequenceChecks
 from .spec import Spec
-from .stream import FrameItem, SequenceStream, memory_estimate, video_digest
+from .stream import FrameItem, Handoff, SequenceStream, memory_estimate, video_digest
 from .workers import blas_threads_limited, run_in_workers, torch_threads, torch_threads_limited, worker_count
 from .types import FlowPair, Video
 
@@ -60,6 +61,24 @@ class _Timer:
     timings: dict[str, float] = field(default_factory=dict)
     cached: list[str] = field(default_factory=list)
     triplets: list[dict] = field(default_factory=list)
+
+
+@dataclass
+class OpenSequence:
+    """A sequence whose stream is prepared, its front possibly running ahead (:meth:`Pipeline.open_sequence`);
+    :meth:`Pipeline.finish_sequence` runs the rest."""
+
+    source: SequenceSource
+    stream: SequenceStream
+    front: Iterator[FrameItem]
+    handoff: Handoff  # when the front's parts have ended
+    first: str  # the first frame's stem
+
+    def close(self) -> None:
+        """Stop the front's threads (a sequence that will not be finished, or one that was)."""
+        close = getattr(self.front, "close", None)
+        if close is not None:
+            close()
 
 
 class Pipeline:
@@ -156,14 +175,16 @@ class Pipeline:
     def run_sequence(self, source: SequenceSource) -> dict:
         """Stream one sequence through the stages, writing its outputs as frames complete; returns its
         ``run.json`` entry."""
+        return self.finish_sequence(self.open_sequence(source))
+
+    def open_sequence(self, source: SequenceSource, *, after: Handoff | None = None) -> "OpenSequence":
+        """Read the first frame of ``source`` (an unreadable input raises :class:`InputError` here) and prepare
+        its stream; with ``run.threads`` the front of the stream (flow, trajectories, rigidity) starts at once in
+        its threads, each part after the same part of the sequence whose :class:`Handoff` is ``after``, and works
+        ahead while :meth:`finish_sequence` of the previous sequence runs. Nothing is written under ``output.dir`` before
+        :meth:`finish_sequence`; :meth:`OpenSequence.close` stops a sequence that will not be finished."""
         spec = self.spec
-        started = time.perf_counter()
         needs_full = _needs_full_frames(spec)
-        digest = None
-        if self.cache.enabled:  # one decoding pass more, for cache keys that depend on the whole video
-            digest = video_digest(frame for _, frame, _ in iter_frames(source, scale=spec.input.scale,
-                                                                       max_frames=spec.input.max_frames,
-                                                                       keep_full=False))
         frames = iter_frames(source, scale=spec.input.scale, max_frames=spec.input.max_frames, keep_full=needs_full)
         first = next(frames)
         size = first[2].shape[:2] if first[2] is not None else source.size
@@ -174,10 +195,29 @@ class Pipeline:
             for t, (stem, frame, full) in enumerate(frames, start=1):
                 yield FrameItem(t, stem, frame, full)
 
+        digest = None
+        if self.cache.enabled:  # one decoding pass more, for cache keys that depend on the whole video
+            def digest():
+                return video_digest(frame for _, frame, _ in iter_frames(source, scale=spec.input.scale,
+                                                                         max_frames=spec.input.max_frames,
+                                                                         keep_full=False))
+
         size = tuple(int(v) for v in (size or shape))
-        log.info("%s: frames at %dx%d (input %dx%d)", source.name, shape[1], shape[0], size[1], size[0])
-        stream = SequenceStream(self, source.name, size, tuple(int(v) for v in shape), digest=digest)
-        writer = SequenceWriter(spec.output.dir, source.name, spec.output.save, size, shape,
+        stream = SequenceStream(self, source.name, size, tuple(int(v) for v in shape))
+        handoff = Handoff()
+        front = stream.front(items(), threads=spec.run.threads, previous=after, handoff=handoff, digest=digest)
+        if spec.run.threads:
+            front.start()
+        return OpenSequence(source, stream, front, handoff, first[0])
+
+    def finish_sequence(self, opened: "OpenSequence") -> dict:
+        """Run the rest of an :meth:`open_sequence` (motion net, appearance, fusion, refiner) and write its outputs
+        as frames complete; returns its ``run.json`` entry."""
+        spec, source, stream = self.spec, opened.source, opened.stream
+        started = time.perf_counter()
+        log.info("%s: frames at %dx%d (input %dx%d)", source.name, stream.shape[1], stream.shape[0],
+                 stream.size[1], stream.size[0])
+        writer = SequenceWriter(spec.output.dir, source.name, spec.output.save, stream.size, stream.shape,
                                 fps=spec.output.fps or source.fps)
         checks = SequenceChecks(source.name)
         count, last_stem = 0, None
@@ -185,7 +225,7 @@ class Pipeline:
         report.start(source.name, source.count)
         try:
             write_time = 0.0
-            for item in stream.items(items(), threads=spec.run.threads):
+            for item in stream.back(opened.front):
                 start = time.perf_counter()
                 writer.write(item)
                 write_time += time.perf_counter() - start
@@ -198,12 +238,13 @@ class Pipeline:
             writer.abort()
             raise
         finally:
+            opened.close()
             report.finish(source.name)
         stream.timings["write"] = write_time
         return {
             "frames": count,
-            "input_size": list(size),
-            "processing_size": list(shape),
+            "input_size": list(stream.size),
+            "processing_size": list(stream.shape),
             "timings_s": {k: round(v, 4) for k, v in stream.timings.items()},
             "seconds": round(time.perf_counter() - started, 3),
             "cached": stream.cached,
@@ -211,7 +252,7 @@ class Pipeline:
             "triplets": _summarise_triplets(stream.triplets),
             **checks.finish(),
             "config": self.config_digest(),
-            **({"stopped": f"{source.stopped}; the sequence ends there: its first {count} frames ({first[0]} to "
+            **({"stopped": f"{source.stopped}; the sequence ends there: its first {count} frames ({opened.first} to "
                            f"{last_stem}) were processed and their outputs kept"} if source.stopped else {}),
         }
 
@@ -294,15 +335,7 @@ class Pipeline:
                 manifest["ray"] = run_on_ray(self, todo, finished, failed)
             elif workers <= 1:
                 with torch_threads_limited(torch_threads(os.cpu_count() or 1, spec.run.threads)), blas_threads_limited():
-                    for source in todo:
-                        try:
-                            entry = self.run_sequence(source)
-                        except (InputError, StageError) as exc:
-                            if isolate is None:
-                                raise
-                            isolate(source.name, str(exc), exc.exit_code)
-                            continue
-                        finished(source.name, entry)
+                    self._run_here(todo, finished, isolate)
             else:
                 run_in_workers(self, todo, workers, finished, isolate)
         manifest["total_seconds"] = round(time.time() - started, 3)
@@ -324,6 +357,44 @@ class Pipeline:
             _write_manifest(spec.output.dir / "run.json", manifest)
         self._write_report(manifest)
         return manifest
+
+    def _run_here(self, todo: list[SequenceSource], finished, isolate) -> None:
+        """The sequences one after another in this process. With ``run.threads`` the next sequence is opened while
+        the current one runs, its flow starting as soon as the current one's flow is done and its geometry after the
+        current one's geometry: the next video's flow overlaps this one's geometry, its geometry this one's networks
+        and CRF, on other cores. The outputs
+        are the same as one sequence at a time (the stages of a kind still see the sequences in order, one at a
+        time); memory holds the fronts of two sequences at the end of each."""
+        upcoming = None  # the next sequence, opened ahead: an OpenSequence, or the error its opening raised
+        try:
+            for k, source in enumerate(todo):
+                current, upcoming = upcoming if upcoming is not None else self._open_or_error(source), None
+                if sequences_overlap(self.spec, len(todo)) and k + 1 < len(todo):
+                    after = current.handoff if isinstance(current, OpenSequence) else None
+                    upcoming = self._open_or_error(todo[k + 1], after=after)
+                try:
+                    if isinstance(current, BaseException):
+                        raise current
+                    entry = self.finish_sequence(current)
+                except (InputError, StageError) as exc:
+                    if isolate is None:
+                        raise
+                    isolate(source.name, str(exc), exc.exit_code)
+                    continue
+                finally:
+                    if isinstance(current, OpenSequence):
+                        current.close()
+                finished(source.name, entry)
+        finally:
+            if isinstance(upcoming, OpenSequence):
+                upcoming.close()
+
+    def _open_or_error(self, source: SequenceSource, *, after: Handoff | None = None):
+        """:meth:`open_sequence`, or the exception it raised (raised in turn when the sequence's turn comes)."""
+        try:
+            return self.open_sequence(source, after=after)
+        except Exception as exc:
+            return exc
 
     def _write_report(self, manifest: dict) -> None:
         if "report" in self.spec.output.save:
@@ -369,26 +440,47 @@ def _needs_full_frames(spec: Spec) -> bool:
     return "refiner" in spec.stages or bool({"panels", "overlay"} & set(spec.output.save))
 
 
-def memory_warning(spec: Spec, source: SequenceSource) -> str | None:
-    """One line when the run loop's estimated peak memory for ``source`` is above :data:`MEMORY_WARNING_BYTES`."""
-    if source.size is None:
+def _estimate(spec: Spec, source: SequenceSource | None) -> int | None:
+    """:func:`memory_estimate` of ``source`` under ``spec`` (``None`` when it cannot be known before decoding)."""
+    if source is None or source.size is None:
+        return None
+    if spec.run.ed_window is None and not source.count:
+        return None  # the whole video in flight, of a length not known before it is decoded
+    size = tuple(source.size)
+    return memory_estimate(size, processing_size(size, spec.input.scale), chunk=spec.run.chunk, lag=spec.run.lag,
+                           frames=source.count, full_frames=_needs_full_frames(spec), ed_window=spec.run.ed_window)
+
+
+def memory_warning(spec: Spec, source: SequenceSource, alongside: SequenceSource | None = None) -> str | None:
+    """One line when the run loop's estimated peak memory for ``source`` is above :data:`MEMORY_WARNING_BYTES`;
+    ``alongside``: the sequence whose flow and geometry run beside it (the next one of a run in one process)."""
+    estimate = _estimate(spec, source)
+    if estimate is None:
+        return None
+    beside = _estimate(spec, alongside) or 0
+    if estimate + beside <= MEMORY_WARNING_BYTES:
         return None
     size = tuple(source.size)
     shape = processing_size(size, spec.input.scale)
-    if spec.run.ed_window is None and not source.count:
-        return None  # the whole video in flight, of a length not known before it is decoded
-    estimate = memory_estimate(size, shape, chunk=spec.run.chunk, lag=spec.run.lag, frames=source.count,
-                               full_frames=_needs_full_frames(spec), ed_window=spec.run.ed_window)
-    if estimate <= MEMORY_WARNING_BYTES:
-        return None
+    with_next = f" with the next sequence ({alongside.name}) beside it" if beside else ""
     return (f"{source.name}: frames of {size[1]}x{size[0]} px (processed at {shape[1]}x{shape[0]}) need about "
-            f"{estimate / 2**30:.1f} GiB in the run loop (run.chunk {spec.run.chunk}, run.lag {spec.run.lag}), above "
-            f"the {MEMORY_WARNING_BYTES / 2**30:g} GiB warning bound; a lower input.scale, run.chunk or run.lag uses less")
+            f"{(estimate + beside) / 2**30:.1f} GiB in the run loop{with_next} (run.chunk {spec.run.chunk}, run.lag "
+            f"{spec.run.lag}), above the {MEMORY_WARNING_BYTES / 2**30:g} GiB warning bound; a lower input.scale, "
+            "run.chunk or run.lag uses less")
+
+
+def sequences_overlap(spec: Spec, sequences: int) -> bool:
+    """Whether a run of ``sequences`` sequences starts the next one's flow and geometry while one finishes (in one
+    process with ``run.threads``: :meth:`Pipeline._run_here`)."""
+    return (spec.run.threads and spec.run.executor != "ray" and sequences > 1
+            and worker_count(spec.run.workers, sequences) <= 1)
 
 
 def warn_about_memory(spec: Spec, sources: list[SequenceSource]) -> None:
-    for source in sources:
-        warning = memory_warning(spec, source)
+    overlap = sequences_overlap(spec, len(sources))
+    for k, source in enumerate(sources):
+        nxt = sources[k + 1] if overlap and k + 1 < len(sources) else None
+        warning = memory_warning(spec, source, nxt)
         if warning:
             log.warning(warning)
 

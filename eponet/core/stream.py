@@ -36,13 +36,12 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import queue
 import sys
 import threading
 import time
 import zlib
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
 import numpy as np
@@ -52,11 +51,12 @@ from .errors import EponetError, StageError
 from .graph import KINDS, check_output
 from .imaging import resize_map
 from .motion import ED_TARGET, ED_WINDOW, FLOW_SCALE, ed_frame_sample, ed_window_scale, normalise_ed
+from .prefetch import Prefetch, wait_for
 from . import rigidity_stream
 from .rigidity_stream import GeometryScorer
 from .types import FlowPair, Video
 
-__all__ = ["FrameItem", "SequenceStream", "video_digest", "prefetch", "memory_estimate"]
+__all__ = ["FrameItem", "SequenceStream", "Front", "Handoff", "video_digest", "memory_estimate"]
 
 log = logging.getLogger(__name__)
 
@@ -128,45 +128,40 @@ def _graph_order(kind: str) -> int:
     return KINDS.index(kind) if kind in KINDS else len(KINDS)
 
 
-class _Stop:
-    pass
+@dataclass
+class Handoff:
+    """When the parts of a sequence's :meth:`SequenceStream.front` have ended (``flow``: its flow, ``geometry``: its
+    trajectories, rigidity and ED scale): the next sequence's front in the same process waits for them."""
+
+    flow: threading.Event = field(default_factory=threading.Event)
+    geometry: threading.Event = field(default_factory=threading.Event)
 
 
-def prefetch(iterator: Iterator, depth: int, name: str) -> Iterator:
-    """Run ``iterator`` in a background thread, at most ``depth`` items ahead: the stages upstream of this point
-    work on the next chunk while those downstream work on this one (numpy, OpenCV and torch release the GIL in
-    their heavy loops). An exception upstream is raised here, in order."""
-    channel: queue.Queue = queue.Queue(maxsize=max(1, depth))
-    stop = threading.Event()
+class Front:
+    """A sequence's front running in threads (:meth:`SequenceStream.front`): iterate it for its frames;
+    :meth:`start` runs it ahead before anything is asked, :meth:`close` stops all its threads."""
 
-    def produce():
-        try:
-            for item in iterator:
-                while not stop.is_set():
-                    try:
-                        channel.put(item, timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if stop.is_set():
-                    return
-            channel.put(_Stop)
-        except BaseException as exc:  # handed to the consumer
-            channel.put(exc)
+    def __init__(self, closed: threading.Event, last: Prefetch, *others: Prefetch):
+        self._closed = closed
+        self._parts = (last, *others)
 
-    thread = threading.Thread(target=produce, name=f"eponet-{name}", daemon=True)
-    thread.start()
-    try:
-        while True:
-            item = channel.get()
-            if item is _Stop:
-                return
-            if isinstance(item, BaseException):
-                raise item
-            yield item
-    finally:
-        stop.set()
-        thread.join(timeout=5)
+    def start(self) -> "Front":
+        for part in reversed(self._parts):
+            part.start()
+        return self
+
+    def __iter__(self) -> "Front":
+        return self
+
+    def __next__(self) -> FrameItem:
+        return next(self._parts[0])
+
+    def close(self) -> None:
+        self._closed.set()
+        for part in self._parts:  # all told first, so that none waits for another that is told later
+            part.stop()
+        for part in self._parts:
+            part.close()
 
 
 class SequenceStream:
@@ -194,15 +189,54 @@ class SequenceStream:
 
     # -- the chain ------------------------------------------------------------------------------
     def items(self, frames: Iterator[FrameItem], *, threads: bool = True) -> Iterator[FrameItem]:
+        """Every frame of ``frames`` once all stages are done with it (:meth:`front`, then :meth:`back`)."""
+        front = self.front(frames, threads=threads)
+        try:
+            yield from self.back(front)
+        finally:
+            front.close()
+
+    def front(self, frames: Iterator[FrameItem], *, threads: bool = True, previous: "Handoff | None" = None,
+              handoff: "Handoff | None" = None, digest=None) -> Iterator[FrameItem]:
+        """The stages before the per-frame ones: flow, then trajectories, rigidity and the ED scale (the geometry).
+        With ``threads`` a :class:`Front`, flow and geometry in a thread each, which :meth:`Front.start` runs ahead
+        of any consumer. ``previous``: the :class:`Handoff` of the sequence before this one in the same process,
+        whose flow (geometry) this front's flow (geometry) waits for, so that a stage never works on two sequences
+        at once and sees them in order; ``handoff``: this front's own, set as its parts end, however they end;
+        ``digest``: a callable giving :attr:`digest` (the cache key of the whole video), called in the geometry's
+        thread before it starts."""
+        geometry = "rigidity" in self.stages
+        handoff = handoff or Handoff()
+        closed = threading.Event()  # set when a threaded front is closed: a part still waiting for its turn ends
+
+        def flows():
+            try:
+                if previous is None or wait_for(previous.flow, closed):
+                    yield from self._flow(frames)
+            finally:
+                handoff.flow.set()
+
+        def geometries(stream):
+            try:
+                if previous is None or wait_for(previous.geometry, closed):
+                    if digest is not None:
+                        self.digest = digest()
+                    yield from self._ed_scale(self._geometry(stream))
+            finally:
+                handoff.geometry.set()
+
+        if not threads:
+            return geometries(flows()) if geometry else flows()
+        flow = Prefetch(flows(), self.chunk + 1, "flow")
+        if not geometry:
+            handoff.geometry.set()
+            return Front(closed, flow)
+        return Front(closed, Prefetch(geometries(flow), self.chunk, "geometry"), flow)
+
+    def back(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
+        """The per-frame and window stages (motion net, appearance, fusion, refiner) over the items of a
+        :meth:`front`, in the calling thread."""
         stages = self.stages
-        stream = self._flow(frames)
-        if threads:
-            stream = prefetch(stream, self.chunk + 1, "flow")
-        if "rigidity" in stages:
-            stream = self._geometry(stream)
-            stream = self._ed_scale(stream)
-            if threads:
-                stream = prefetch(stream, self.chunk, "geometry")
         if "motion_net" in stages or "rigidity" in stages or "motion_images" in self.spec.output.save:
             stream = self._motion_images(stream)
         if "motion_net" in stages:

@@ -6,12 +6,28 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from eponet.core.motion import ED_ENCODINGS, encode_ed
+from eponet.core.motion import ED_ENCODINGS, FLOW_CENTRINGS, encode_ed
 
-__all__ = ["EpoUNet", "INPUT_CHANNELS", "InferenceUNet"]
+__all__ = ["EpoUNet", "INPUT_CHANNELS", "FLOW_CENTRINGS", "InferenceUNet", "centre_flow"]
 
 #: Which channels of a (dx, dy, ED) motion image each input modality uses.
 INPUT_CHANNELS = {"ed+flow": (0, 1, 2), "flow": (0, 1), "ed": (2,)}
+
+
+
+def centre_flow(motion_images: torch.Tensor) -> torch.Tensor:
+    """(dx, dy, ED) motion images ``(B, 3, H, W)`` with each frame's flow channels less the median flow of its
+    pixels whose ED is at most the frame's median ED: the flow of the part of the frame that the epipolar geometry
+    finds most rigid, so that a camera that pans or follows an object gives that part a flow near zero and the
+    object its motion relative to it. Where ED is constant (a zeroed ED channel) that is the median over the frame.
+    A new tensor; the ED channel is unchanged."""
+    flow = motion_images[:, :2].flatten(2)
+    ed = motion_images[:, 2].flatten(1)
+    rigid = ed <= ed.median(dim=1, keepdim=True).values
+    reference = flow.masked_fill(~rigid[:, None], float("nan")).nanmedian(dim=2).values
+    out = motion_images.clone()
+    out[:, :2] -= reference[:, :, None, None]
+    return out
 
 #: Pixels per block of :class:`InferenceUNet`'s head (its hidden layer, 4096 x 32 floats, fits a core's cache).
 HEAD_BLOCK = 4096
@@ -33,23 +49,27 @@ class EpoUNet(nn.Module):
     Input: float ``(B, C, H, W)`` with C = ``len(INPUT_CHANNELS[inputs])``; any H, W (not only multiples of
     2**depth: the decoder resizes to each skip's size). Output: logits ``(B, 1, H, W)``; apply a sigmoid for
     the foreground probability. :meth:`select_inputs` turns the pipeline's motion images into that input,
-    saturating the ED channel as ``ed_encoding`` says (``clip``, the paper's, or ``log``).
+    saturating the ED channel as ``ed_encoding`` says (``clip``, the paper's, or ``log``) and centring the flow
+    channels as ``flow_centring`` says (``none``, the paper's, or ``rigid``: :func:`centre_flow`).
     """
 
     def __init__(self, *, inputs: str = "ed+flow", depth: int = 4, widths: tuple[int, ...] = (16, 32, 64, 128),
-                 head_channels: int = 128, ed_encoding: str = "clip"):
+                 head_channels: int = 128, ed_encoding: str = "clip", flow_centring: str = "none"):
         super().__init__()
         if inputs not in INPUT_CHANNELS:
             raise ValueError(f"inputs: expected one of {', '.join(INPUT_CHANNELS)}, got {inputs!r}")
         if ed_encoding not in ED_ENCODINGS:
             raise ValueError(f"ed_encoding: expected one of {', '.join(ED_ENCODINGS)}, got {ed_encoding!r}")
+        if flow_centring not in FLOW_CENTRINGS:
+            raise ValueError(f"flow_centring: expected one of {', '.join(FLOW_CENTRINGS)}, got {flow_centring!r}")
         if len(widths) < depth:
             raise ValueError(f"widths: need at least {depth} values for depth {depth}, got {list(widths)}")
         widths = tuple(int(w) for w in widths[:depth])
         self.config = {"inputs": inputs, "depth": depth, "widths": list(widths), "head_channels": head_channels,
-                       "ed_encoding": ed_encoding}
+                       "ed_encoding": ed_encoding, "flow_centring": flow_centring}
         self.channels = INPUT_CHANNELS[inputs]
         self.ed_encoding = ed_encoding
+        self.flow_centring = flow_centring
         cin = len(self.channels)
         self.encoder = nn.ModuleList()
         for width in widths:
@@ -87,7 +107,10 @@ class EpoUNet(nn.Module):
 
     def select_inputs(self, motion_images: torch.Tensor) -> torch.Tensor:
         """The channels of full (dx, dy, ED) motion images ``(B, 3, H, W)`` that this network reads, the ED
-        channel (scaled over a window of frames, unsaturated) saturated by ``ed_encoding``. A new tensor."""
+        channel (scaled over a window of frames, unsaturated) saturated by ``ed_encoding``, the flow centred by
+        ``flow_centring``. A new tensor."""
+        if getattr(self, "flow_centring", "none") == "rigid" and 0 in self.channels:
+            motion_images = centre_flow(motion_images)
         x = motion_images[:, list(self.channels)]
         if 2 in self.channels:
             ed = self.channels.index(2)
@@ -120,6 +143,7 @@ class InferenceUNet(nn.Module):
     def __init__(self, model: EpoUNet):
         super().__init__()
         self.config, self.channels, self.ed_encoding = dict(model.config), model.channels, model.ed_encoding
+        self.flow_centring = model.flow_centring
         frozen = lambda tensor: nn.Parameter(tensor.contiguous(), requires_grad=False)  # noqa: E731
         self.convs = nn.ParameterList()  # encoder blocks, then the bottleneck: weight, bias
         for block in [*model.encoder, model.bottleneck]:

@@ -10,7 +10,7 @@ from typing import Any
 import yaml
 
 from eponet.core.errors import SpecError
-from eponet.core.motion import ED_ENCODINGS
+from eponet.core.motion import ED_ENCODINGS, FLOW_CENTRINGS
 from eponet.core.params import Param, validate_params
 from eponet.core.spec import apply_overrides, default_cache_dir, parse_spec
 from eponet.core.registry import nearest
@@ -34,6 +34,9 @@ _MODEL = (
     Param("head_channels", "int", 128, "channels before the 1x1 classifier (128 in the paper)", minimum=1),
     Param("ed_encoding", "choice", "clip", "how the network saturates the scaled ED channel: clip at "
           "1 (the paper) or log (1 + ln ED above 1)", choices=ED_ENCODINGS),
+    Param("flow_centring", "choice", "none", "what the network subtracts from each frame's flow channels: none (the "
+          "paper) or rigid (the median flow of the pixels whose ED is at most the frame's median)",
+          choices=FLOW_CENTRINGS),
 )
 _OPTIMIZER = (
     Param("name", "choice", "sgd", "optimiser", choices=("sgd", "adam", "adamw", "rmsprop")),

@@ -164,6 +164,11 @@ def test_large_frames_are_warned_about_with_the_estimated_memory(frames_dir, tmp
         "run.lag 30), above the 8 GiB warning bound; a lower input.scale, run.chunk or run.lag uses less")
     assert memory_warning(spec, SequenceSource(name="hd", files=[], size=(1080, 1920), count=200)) is None
     assert memory_warning(spec, SequenceSource(name="short", files=[], size=(3000, 4000), count=10)) is None
+    # in one process the next sequence's flow and geometry run beside a sequence's networks: both count
+    hd = SequenceSource(name="hd", files=[], size=(1080, 1920), count=200)  # under the bound alone
+    assert memory_warning(spec, hd) is None
+    assert memory_warning(spec, hd, hd).startswith("hd: frames of 1920x1080 px (processed at 960x540) need about "
+                                                   "9.7 GiB in the run loop with the next sequence (hd) beside it")
 
 
 def test_a_second_run_keeps_the_first_runs_record_and_the_same_spec_still_resumes(frames_dir, tmp_path):

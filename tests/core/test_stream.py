@@ -1,6 +1,8 @@
 """The streaming run loop computes what a whole-video composition of the same stages computes."""
 
 import json
+import threading
+import time
 import zlib
 
 import numpy as np
@@ -187,29 +189,54 @@ def test_interrupted_run_resumes_with_identical_outputs(tmp_path, monkeypatch):
     assert len([k for k in reference if k.startswith("b/masks/")]) == 6
 
     pipeline = Pipeline(_epo(root, tmp_path / "out"))
-    original = pipeline.run_sequence
+    original = pipeline.finish_sequence
     calls = []
 
-    def killed_after_the_first(source):
-        calls.append(source.name)
+    def killed_after_the_first(opened):  # at the second sequence's turn, its front already running ahead
+        calls.append(opened.source.name)
         if len(calls) == 2:
             raise KeyboardInterrupt
-        return original(source)
+        return original(opened)
 
-    monkeypatch.setattr(pipeline, "run_sequence", killed_after_the_first)
+    monkeypatch.setattr(pipeline, "finish_sequence", killed_after_the_first)
     with pytest.raises(KeyboardInterrupt):
         pipeline.run()
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a", "run.json"]  # nothing half-written
+    assert not [t.name for t in threading.enumerate() if t.name.startswith("eponet-")]  # the fronts of b and c were stopped
     processed = []
     again = Pipeline(_epo(root, tmp_path / "out"))
-    resumed_original = again.run_sequence
-    monkeypatch.setattr(again, "run_sequence", lambda source: processed.append(source.name) or resumed_original(source))
+    resumed_original = again.finish_sequence
+    monkeypatch.setattr(again, "finish_sequence",
+                        lambda opened: processed.append(opened.source.name) or resumed_original(opened))
     manifest = again.run()
     assert processed == ["b", "c"] and manifest["sequences"]["a"]["resumed"] is True
     assert _files(tmp_path / "out") == reference
     run = json.loads((tmp_path / "out" / "run.json").read_text())
     assert len(run["weights_sha256"]["motion_net"]) == 2 and all(len(d) == 64 for d in run["weights_sha256"]["motion_net"])
     assert run["resolved"]["motion_net"]["precision"] in ("float32", "bfloat16")  # what `auto` became, if asked
+
+
+def test_next_sequence_overlaps_this_one_but_each_stage_sees_one_sequence_at_a_time(tmp_path, monkeypatch):
+    root = _three_sequences(tmp_path / "davis")
+    calls = []
+    timed = SequenceStream._timed
+
+    def recorded(self, kind, compute):
+        start = time.perf_counter()
+        try:
+            return timed(self, kind, compute)
+        finally:
+            calls.append((kind, self.name, start, time.perf_counter()))
+
+    monkeypatch.setattr(SequenceStream, "_timed", recorded)
+    Pipeline(_epo(root, tmp_path / "out")).run()
+    for kind in ("flow", "trajectories", "rigidity", "motion_net", "refiner"):
+        spans = sorted((start, end, name) for k, name, start, end in calls if k == kind)
+        assert [name for _, _, name in spans] == sorted(name for _, _, name in spans), kind  # a..., b..., c...
+        assert all(end <= following for (_, end, _), (following, _, _) in zip(spans, spans[1:])), kind  # one at a time
+    for earlier, later in (("a", "b"), ("b", "c")):  # the next video's flow ran before this one's networks were done
+        assert min(s for k, n, s, _ in calls if k == "flow" and n == later) < \
+            max(e for k, n, _, e in calls if k == "motion_net" and n == earlier)
 
 
 def test_masks_do_not_depend_on_the_number_of_workers(tmp_path):

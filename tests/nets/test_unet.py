@@ -38,6 +38,29 @@ def test_ed_encoding_saturates_only_the_ed_channel(inputs):
     assert EpoUNet(ed_encoding="log").config["ed_encoding"] == "log"
 
 
+def test_rigid_flow_centring_removes_the_flow_of_the_low_ed_part_of_each_frame():
+    # frame 0: a camera pan of (3, -1) px/20 over the background (ED 0.1-0.3), an object at rest in the image (a
+    # camera following it, ED 2.0) on 30% of the frame; frame 1: the same with a zeroed ED channel
+    images = torch.zeros(2, 3, 10, 10)
+    images[:, 0], images[:, 1] = 3.0, -1.0
+    images[:, :2, :3] = 0.0
+    images[0, 2] = torch.linspace(0.1, 0.3, 100).view(10, 10)
+    images[0, 2, :3] = 2.0
+    before = images.clone()
+    x = EpoUNet(flow_centring="rigid").select_inputs(images)
+    assert torch.equal(images, before)
+    assert x[0, :2, 3:].abs().max() == 0 and x[0, :2, :3].flatten(1).tolist() == [[-3.0] * 30, [1.0] * 30]
+    assert torch.equal(x[:, 2], EpoUNet().select_inputs(images)[:, 2])  # ED as without the centring
+    assert x[1, :2, 3:].abs().max() == 0  # without ED: the frame's median flow, the background's here
+    # a constant pan added to a frame does not change what the network reads
+    shifted = images.clone()
+    shifted[:, 0] += 5.0
+    assert torch.allclose(EpoUNet(flow_centring="rigid").select_inputs(shifted), x)
+    assert EpoUNet().select_inputs(images)[:, :2].equal(images[:, :2])  # the paper's: unchanged
+    with pytest.raises(ValueError, match="flow_centring: expected one of none, rigid"):
+        EpoUNet(flow_centring="mean")
+
+
 def test_head_has_the_papers_128_channels():
     model = EpoUNet()
     assert model.classifier.in_channels == 128
