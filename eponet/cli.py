@@ -111,7 +111,8 @@ def _print_summary(manifest: dict, out_dir: Path, quiet: bool) -> None:
 
 def _cmd_validate(args: argparse.Namespace) -> int:
     from .core.inputs import discover_sequences
-    from .core.pipeline import warn_about_memory
+    from .core.memory import warn_about_memory
+    from .core.pipeline import sequences_overlap
     from .core.spec import load_spec
 
     spec = load_spec(args.spec, args.overrides)
@@ -120,7 +121,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     for source in sources:  # an unreadable frame after the first three: a run would stop there
         if source.stopped:
             raise InputError(f"{source.stopped} (a run processes the {source.count} frames before it, then fails)")
-    warn_about_memory(spec, sources)
+    warn_about_memory(spec, sources, overlap=sequences_overlap(spec, len(sources)))
     stages = ", ".join(f"{k}={c.plugin}" for k, c in spec.stages.items())
     print(f"{args.spec}: valid (preset {spec.preset}; {stages}; {len(sources)} sequence(s): "
           f"{', '.join(s.name for s in sources[:8])}{' ...' if len(sources) > 8 else ''})")

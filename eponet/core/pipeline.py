@@ -20,25 +20,23 @@ import numpy as np
 
 from .cache import Cache, code_fingerprint, content_key, factory_module
 from .errors import EponetError, InputError, OutputError, SequenceFailures, StageError
-from .graph import GRAPH, check_stage, stage_kind
+from .graph import GRAPH, check_stage
 from .html_report import write_report
-from .inputs import SequenceSource, discover_sequences, iter_frames, processing_size
+from .inputs import SequenceSource, discover_sequences, iter_frames
 from .io import atomic_write_bytes, is_no_space, no_space_error
 from .outputs import SequenceOutputs, SequenceWriter, remove_partials
 from . import progress
 from .sanity import SequenceChecks
 from .spec import Spec
-from .stream import FrameItem, Handoff, SequenceStream, memory_estimate, video_digest
+from .memory import needs_full_frames, warn_about_memory
+from .stream import FrameItem, Handoff, SequenceStream, video_digest
 from .workers import blas_threads_limited, run_in_workers, torch_threads, torch_threads_limited, worker_count
 from .types import FlowPair, Video
 
-__all__ = ["Pipeline", "run_spec", "stage_times_line", "library_versions", "memory_warning", "MEMORY_WARNING_BYTES"]
+__all__ = ["Pipeline", "run_spec", "stage_times_line", "library_versions", "sequences_overlap"]
 
 log = logging.getLogger(__name__)
 
-#: A sequence whose estimated run-loop peak (:func:`eponet.core.stream.memory_estimate`) is above this is warned
-#: about before it runs (README, "run:"); it still runs.
-MEMORY_WARNING_BYTES = 8 * 2**30
 
 _LIBRARIES = ("numpy", "scipy", "torch", "opencv-python-headless", "pluggy", "pydensecrf2", "scikit-image", "PyYAML", "pillow")
 
@@ -184,7 +182,7 @@ class Pipeline:
         ahead while :meth:`finish_sequence` of the previous sequence runs. Nothing is written under ``output.dir`` before
         :meth:`finish_sequence`; :meth:`OpenSequence.close` stops a sequence that will not be finished."""
         spec = self.spec
-        needs_full = _needs_full_frames(spec)
+        needs_full = needs_full_frames(spec)
         frames = iter_frames(source, scale=spec.input.scale, max_frames=spec.input.max_frames, keep_full=needs_full)
         first = next(frames)
         size = first[2].shape[:2] if first[2] is not None else source.size
@@ -195,17 +193,15 @@ class Pipeline:
             for t, (stem, frame, full) in enumerate(frames, start=1):
                 yield FrameItem(t, stem, frame, full)
 
-        digest = None
-        if self.cache.enabled:  # one decoding pass more, for cache keys that depend on the whole video
-            def digest():
-                return video_digest(frame for _, frame, _ in iter_frames(source, scale=spec.input.scale,
-                                                                         max_frames=spec.input.max_frames,
-                                                                         keep_full=False))
+        def digest():  # one decoding pass more, for cache keys that depend on the whole video
+            return video_digest(frame for _, frame, _ in iter_frames(source, scale=spec.input.scale,
+                                                                     max_frames=spec.input.max_frames, keep_full=False))
 
         size = tuple(int(v) for v in (size or shape))
         stream = SequenceStream(self, source.name, size, tuple(int(v) for v in shape))
         handoff = Handoff()
-        front = stream.front(items(), threads=spec.run.threads, previous=after, handoff=handoff, digest=digest)
+        front = stream.front(items(), threads=spec.run.threads, previous=after, handoff=handoff,
+                             digest=digest if self.cache.enabled else None)
         if spec.run.threads:
             front.start()
         return OpenSequence(source, stream, front, handoff, first[0])
@@ -309,7 +305,7 @@ class Pipeline:
                 todo.append(source)
         workers = worker_count(spec.run.workers, len(todo))
         manifest["workers"] = workers
-        warn_about_memory(spec, todo)
+        warn_about_memory(spec, todo, overlap=sequences_overlap(spec, len(todo)))
         order = {s.name: k for k, s in enumerate(sources)}
 
         done = []
@@ -435,54 +431,11 @@ def stage_times_line(name: str, entry: dict) -> str:
     return f"{name}: {stages}{cached}; {entry.get('frames', 0)} frames in {entry.get('seconds', 0):.1f} s"
 
 
-def _needs_full_frames(spec: Spec) -> bool:
-    """Whether the loop keeps the input-size frames (for the refiner or a picture output)."""
-    return "refiner" in spec.stages or bool({"panels", "overlay"} & set(spec.output.save))
-
-
-def _estimate(spec: Spec, source: SequenceSource | None) -> int | None:
-    """:func:`memory_estimate` of ``source`` under ``spec`` (``None`` when it cannot be known before decoding)."""
-    if source is None or source.size is None:
-        return None
-    if spec.run.ed_window is None and not source.count:
-        return None  # the whole video in flight, of a length not known before it is decoded
-    size = tuple(source.size)
-    return memory_estimate(size, processing_size(size, spec.input.scale), chunk=spec.run.chunk, lag=spec.run.lag,
-                           frames=source.count, full_frames=_needs_full_frames(spec), ed_window=spec.run.ed_window)
-
-
-def memory_warning(spec: Spec, source: SequenceSource, alongside: SequenceSource | None = None) -> str | None:
-    """One line when the run loop's estimated peak memory for ``source`` is above :data:`MEMORY_WARNING_BYTES`;
-    ``alongside``: the sequence whose flow and geometry run beside it (the next one of a run in one process)."""
-    estimate = _estimate(spec, source)
-    if estimate is None:
-        return None
-    beside = _estimate(spec, alongside) or 0
-    if estimate + beside <= MEMORY_WARNING_BYTES:
-        return None
-    size = tuple(source.size)
-    shape = processing_size(size, spec.input.scale)
-    with_next = f" with the next sequence ({alongside.name}) beside it" if beside else ""
-    return (f"{source.name}: frames of {size[1]}x{size[0]} px (processed at {shape[1]}x{shape[0]}) need about "
-            f"{(estimate + beside) / 2**30:.1f} GiB in the run loop{with_next} (run.chunk {spec.run.chunk}, run.lag "
-            f"{spec.run.lag}), above the {MEMORY_WARNING_BYTES / 2**30:g} GiB warning bound; a lower input.scale, "
-            "run.chunk or run.lag uses less")
-
-
 def sequences_overlap(spec: Spec, sequences: int) -> bool:
     """Whether a run of ``sequences`` sequences starts the next one's flow and geometry while one finishes (in one
     process with ``run.threads``: :meth:`Pipeline._run_here`)."""
     return (spec.run.threads and spec.run.executor != "ray" and sequences > 1
             and worker_count(spec.run.workers, sequences) <= 1)
-
-
-def warn_about_memory(spec: Spec, sources: list[SequenceSource]) -> None:
-    overlap = sequences_overlap(spec, len(sources))
-    for k, source in enumerate(sources):
-        nxt = sources[k + 1] if overlap and k + 1 < len(sources) else None
-        warning = memory_warning(spec, source, nxt)
-        if warning:
-            log.warning(warning)
 
 
 def _read_record(path: Path) -> dict:

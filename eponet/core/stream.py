@@ -23,13 +23,20 @@ composition of the same stages computes (``tests/core/test_stream.py``); shorter
 the lag cuts off (a rigidity stage with ``new_history()``, as the built-in ones, carries guided sampling's
 memory from window to window, so its groups are sampled as in the whole video).
 
+Threads: the **front** of a sequence (flow; trajectories, rigidity and the ED scale) runs in two threads, the
+**back** (motion net, appearance, fusion, refiner) in the caller's (:meth:`SequenceStream.front`,
+:meth:`SequenceStream.back`). Of several sequences in one process the next one's front starts while this one's back
+runs, each part after the same part of the previous sequence (:class:`Handoff`), so that a stage sees one sequence
+at a time, in order, and computes what it computes alone.
+
 Resume: the ED maps are cached in blocks of ``chunk`` frames as they are painted, with a checkpoint of the
 trajectory and rigidity state (:mod:`eponet.core.rigidity_stream`) after a block now and then, so that a run killed
 in the middle of a long video takes the frames before the checkpoint from the cache and continues from there,
 computing exactly what an uninterrupted run computes (``tests/core/test_rigidity_stream.py``).
 
 Memory: about ``chunk + lag + 30`` frames of flow, trajectory records and ED maps at the processing size, plus
-``chunk`` full-size frames (and the fusion's window) at a time; :func:`memory_estimate` puts a number on it.
+``chunk`` full-size frames (and the fusion's window) at a time; :func:`eponet.core.memory.memory_estimate` puts a
+number on it.
 """
 
 from __future__ import annotations
@@ -50,48 +57,15 @@ from .cache import array_digest
 from .errors import EponetError, StageError
 from .graph import KINDS, check_output
 from .imaging import resize_map
-from .motion import ED_TARGET, ED_WINDOW, FLOW_SCALE, ed_frame_sample, ed_window_scale, normalise_ed
+from .motion import FLOW_SCALE, ed_frame_sample, ed_window_scale, normalise_ed
 from .prefetch import Prefetch, wait_for
 from . import rigidity_stream
 from .rigidity_stream import GeometryScorer
 from .types import FlowPair, Video
 
-__all__ = ["FrameItem", "SequenceStream", "Front", "Handoff", "video_digest", "memory_estimate"]
+__all__ = ["FrameItem", "SequenceStream", "Front", "Handoff", "video_digest"]
 
 log = logging.getLogger(__name__)
-
-
-#: Bytes the loop holds per frame in flight, per pixel of the processing size (flow both ways, trajectory
-#: records, ED, motion image and the rigidity's window temporaries) and per pixel of the input size (the frame,
-#: the probability and the mask, when a refiner or a picture output needs full-size frames). Measured: peak
-#: RSS less that of a 3-frame run (0.38 GB), ``epo`` preset with the ``threshold`` refiner, 90 frames, chunk 16,
-#: lag 30: 0.17, 0.79 and 0.66 GB for 320x240 at scale 0.5, 640x480 at 0.5 and 320x240 at 1; these constants
-#: give 0.19, 0.77 and 0.63 GB.
-BYTES_PER_PROCESSING_PIXEL = 100
-BYTES_PER_INPUT_PIXEL = 8
-
-
-def memory_estimate(size: tuple[int, int], shape: tuple[int, int], *, chunk: int, lag: int, frames: int = 0,
-                    full_frames: bool = True, ed_window: int | None = ED_WINDOW) -> int:
-    """About how many bytes the run loop holds at its peak for one sequence of input ``size`` ``(H, W)`` processed
-    at ``shape`` ``(h, w)``: ``chunk + lag + ed_window // 2`` frames in flight (``frames``, when given, if the
-    video is shorter; every frame with ``ed_window=None``, the whole video's ED scale), each costing :data:`BYTES_PER_PROCESSING_PIXEL` per processing pixel and, with
-    ``full_frames``, :data:`BYTES_PER_INPUT_PIXEL` per input pixel. Libraries and networks (about 0.4 GB) come on top.
-
-    >>> round(memory_estimate((3000, 4000), (1500, 2000), chunk=16, lag=30) / 2**30, 1)
-    28.0
-    """
-    if ed_window is None:
-        if not frames:
-            raise ValueError("memory_estimate: ed_window=None holds the whole video: give its number of frames")
-        return memory_estimate(size, shape, chunk=frames, lag=0, frames=frames, full_frames=full_frames, ed_window=1)
-    in_flight = chunk + lag + ed_window // 2
-    if frames:
-        in_flight = min(in_flight, frames)
-    per_frame = shape[0] * shape[1] * BYTES_PER_PROCESSING_PIXEL
-    if full_frames:
-        per_frame += size[0] * size[1] * BYTES_PER_INPUT_PIXEL
-    return in_flight * per_frame
 
 
 @dataclass

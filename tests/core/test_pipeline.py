@@ -155,7 +155,7 @@ def test_motion_images_carry_unsaturated_ed_for_the_network_to_encode(tmp_path):
 
 def test_large_frames_are_warned_about_with_the_estimated_memory(frames_dir, tmp_path):
     from eponet.core.inputs import SequenceSource
-    from eponet.core.pipeline import memory_warning
+    from eponet.core.memory import memory_warning
 
     spec = parse_spec({"preset": "epo", "input": {"path": str(frames_dir)}, "output": {"dir": str(tmp_path / "out")}})
     big = SequenceSource(name="big", files=[], size=(3000, 4000), count=200)

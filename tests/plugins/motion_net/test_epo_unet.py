@@ -136,6 +136,9 @@ def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
     assert_shipped_weights("epo-davis-v3", "motion_net")
     EpoUNetStage()  # the default loads the built-in weights
     assert len(EpoUNetStage(weights=["epo-davis", "epo-davis-seed1"]).models) == 2  # the epo preset's pair
+    assert_shipped_weights("epo-davis-centred", "motion_net")
+    centred = EpoUNetStage(weights="epo-davis-centred").models[0]
+    assert centred.flow_centring == "rigid" and centred.config["flow_centring"] == "rigid"
 
 
 def test_epo_preset_on_the_embedded_demo_reaches_the_target_j(tmp_path):
