@@ -24,11 +24,11 @@ from .graph import GRAPH, check_stage
 from .html_report import write_report
 from .inputs import SequenceSource, discover_sequences, iter_frames
 from .io import atomic_write_bytes, is_no_space, no_space_error
+from .memory import needs_full_frames, warn_about_memory
 from .outputs import SequenceOutputs, SequenceWriter, remove_partials
 from . import progress
 from .sanity import SequenceChecks
 from .spec import Spec
-from .memory import needs_full_frames, warn_about_memory
 from .stream import FrameItem, Handoff, SequenceStream, video_digest
 from .workers import blas_threads_limited, run_in_workers, torch_threads, torch_threads_limited, worker_count
 from .types import FlowPair, Video
@@ -179,8 +179,8 @@ class Pipeline:
         """Read the first frame of ``source`` (an unreadable input raises :class:`InputError` here) and prepare
         its stream; with ``run.threads`` the front of the stream (flow, trajectories, rigidity) starts at once in
         its threads, each part after the same part of the sequence whose :class:`Handoff` is ``after``, and works
-        ahead while :meth:`finish_sequence` of the previous sequence runs. Nothing is written under ``output.dir`` before
-        :meth:`finish_sequence`; :meth:`OpenSequence.close` stops a sequence that will not be finished."""
+        ahead while :meth:`finish_sequence` of the previous sequence runs. Nothing is written under ``output.dir``
+        before :meth:`finish_sequence`; :meth:`OpenSequence.close` stops a sequence that will not be finished."""
         spec = self.spec
         needs_full = needs_full_frames(spec)
         frames = iter_frames(source, scale=spec.input.scale, max_frames=spec.input.max_frames, keep_full=needs_full)
@@ -356,19 +356,19 @@ class Pipeline:
 
     def _run_here(self, todo: list[SequenceSource], finished, isolate) -> None:
         """The sequences one after another in this process. With ``run.threads`` the next sequence is opened while
-        the current one runs, its flow starting as soon as the current one's flow is done and its geometry after the
-        current one's geometry: the next video's flow overlaps this one's geometry, its geometry this one's networks
-        and CRF, on other cores. The outputs
-        are the same as one sequence at a time (the stages of a kind still see the sequences in order, one at a
-        time); memory holds the fronts of two sequences at the end of each."""
-        upcoming = None  # the next sequence, opened ahead: an OpenSequence, or the error its opening raised
+        the current one runs: its flow starts as soon as the current one's flow is done and its geometry after the
+        current one's geometry, so the next video's flow and geometry overlap this one's geometry, networks and
+        CRF on other cores. The outputs are those of one sequence at a time (each stage still sees the sequences in
+        order, one at a time); memory holds two sequences' windows at the end of each."""
+        overlap = sequences_overlap(self.spec, len(todo))
+        current = upcoming = None  # an OpenSequence, or the error its opening raised (raised at its turn)
         try:
             for k, source in enumerate(todo):
                 current, upcoming = upcoming if upcoming is not None else self._open_or_error(source), None
-                if sequences_overlap(self.spec, len(todo)) and k + 1 < len(todo):
-                    after = current.handoff if isinstance(current, OpenSequence) else None
-                    upcoming = self._open_or_error(todo[k + 1], after=after)
                 try:
+                    if overlap and k + 1 < len(todo):
+                        after = current.handoff if isinstance(current, OpenSequence) else None
+                        upcoming = self._open_or_error(todo[k + 1], after=after)
                     if isinstance(current, BaseException):
                         raise current
                     entry = self.finish_sequence(current)
@@ -382,8 +382,9 @@ class Pipeline:
                         current.close()
                 finished(source.name, entry)
         finally:
-            if isinstance(upcoming, OpenSequence):
-                upcoming.close()
+            for opened in (current, upcoming):
+                if isinstance(opened, OpenSequence):
+                    opened.close()
 
     def _open_or_error(self, source: SequenceSource, *, after: Handoff | None = None):
         """:meth:`open_sequence`, or the exception it raised (raised in turn when the sequence's turn comes)."""

@@ -12,7 +12,7 @@ import queue
 import threading
 from typing import Iterator
 
-__all__ = ["Prefetch", "Stopped", "prefetch", "wait_for"]
+__all__ = ["Prefetch", "Stopped", "wait_for"]
 
 
 class _Stop:
@@ -26,9 +26,10 @@ class Stopped(RuntimeError):
 
 class Prefetch:
     """Iterates ``iterator`` in a background thread, at most ``depth`` items ahead of the consumer. An exception
-    upstream is raised to the consumer in order, and :class:`Stopped` if the thread was stopped before the end. The thread starts at the first ``next()`` (or at :meth:`start`,
-    to run ahead before anything is asked); :meth:`close` stops it and closes ``iterator`` in its own thread, so
-    that generators upstream run their ``finally`` blocks however the consumer ends."""
+    upstream is raised to the consumer in order, and :class:`Stopped` if the thread was stopped before the end.
+    The thread starts at the first ``next()`` (or at :meth:`start`, to run ahead before anything is asked);
+    :meth:`close` stops it and closes ``iterator`` in its own thread, so that generators upstream run their
+    ``finally`` blocks however the consumer ends."""
 
     def __init__(self, iterator: Iterator, depth: int, name: str):
         self._iterator = iterator
@@ -106,16 +107,6 @@ class Prefetch:
         self.stop()
         if self._started:
             self._thread.join(timeout=5)
-
-
-def prefetch(iterator: Iterator, depth: int, name: str) -> Iterator:
-    """``iterator`` run ahead in a background thread by at most ``depth`` items (:class:`Prefetch`): a generator
-    that closes the prefetch when it is closed or exhausted."""
-    ahead = Prefetch(iterator, depth, name)
-    try:
-        yield from ahead
-    finally:
-        ahead.close()
 
 
 def wait_for(event: threading.Event, cancelled: threading.Event, poll: float = 0.1) -> bool:

@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from eponet.core.prefetch import Prefetch, Stopped, prefetch, wait_for
+from eponet.core.prefetch import Prefetch, Stopped, wait_for
 
 
 def test_items_arrive_in_order_and_an_upstream_error_after_them():
@@ -15,7 +15,7 @@ def test_items_arrive_in_order_and_an_upstream_error_after_them():
 
     received = []
     with pytest.raises(ValueError, match="frame 5"):
-        for item in prefetch(upstream(), 2, "test"):
+        for item in Prefetch(upstream(), 2, "test"):
             received.append(item)
     assert received == [0, 1, 2, 3, 4]
 

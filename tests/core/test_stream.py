@@ -202,7 +202,8 @@ def test_interrupted_run_resumes_with_identical_outputs(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         pipeline.run()
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a", "run.json"]  # nothing half-written
-    assert not [t.name for t in threading.enumerate() if t.name.startswith("eponet-")]  # the fronts of b and c were stopped
+    # the fronts of b and c, opened ahead, were stopped
+    assert not [t.name for t in threading.enumerate() if t.name.startswith("eponet-")]
     processed = []
     again = Pipeline(_epo(root, tmp_path / "out"))
     resumed_original = again.finish_sequence
