@@ -311,18 +311,19 @@ def main(argv=None) -> int:
         plus = args.what == "epo+"
         preset = "epo+" if plus else args.preset
         recipe_rigidity = key_values(args.recipe_rigidity)
+        recipe_model = key_values(args.recipe_model)
         run = key_values(args.run)
         seeds = tuple(int(s) for s in args.seeds.split(","))
         crf = key_values(args.crf)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
-                               trajectories, seeds, crf, args.seed, flow, motion_net, key_values(args.recipe_model))
+                               trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
             meta["recipe_rigidity"] = recipe_rigidity
-        if args.recipe_model:
-            meta["recipe_model"] = key_values(args.recipe_model)
+        if recipe_model:
+            meta["recipe_model"] = recipe_model
         if run:
             meta["run"] = run
         if crf:  # (kept out of the default's record: earlier reports still merge)

@@ -68,15 +68,13 @@ class OpenSequence:
 
     source: SequenceSource
     stream: SequenceStream
-    front: Iterator[FrameItem]
+    front: Iterator[FrameItem]  # a Front, or a generator without threads (both close())
     handoff: Handoff  # when the front's parts have ended
     first: str  # the first frame's stem
 
     def close(self) -> None:
         """Stop the front's threads (a sequence that will not be finished, or one that was)."""
-        close = getattr(self.front, "close", None)
-        if close is not None:
-            close()
+        self.front.close()
 
 
 class Pipeline:

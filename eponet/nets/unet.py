@@ -109,7 +109,7 @@ class EpoUNet(nn.Module):
         """The channels of full (dx, dy, ED) motion images ``(B, 3, H, W)`` that this network reads, the ED
         channel (scaled over a window of frames, unsaturated) saturated by ``ed_encoding``, the flow centred by
         ``flow_centring``. A new tensor."""
-        if getattr(self, "flow_centring", "none") == "rigid" and 0 in self.channels:
+        if self.flow_centring == "rigid" and 0 in self.channels:
             motion_images = centre_flow(motion_images)
         x = motion_images[:, list(self.channels)]
         if 2 in self.channels:
