@@ -41,8 +41,9 @@ FLOW_SCALE = 20.0
 ED_ENCODINGS = ("clip", "log")
 
 #: What a motion network subtracts from each frame's flow channels (``eponet.nets.unet.centre_flow``): nothing (the
-#: paper), or ``rigid``: the median flow of the frame's pixels whose ED is at most the frame's median ED.
-FLOW_CENTRINGS = ("none", "rigid")
+#: paper), ``rigid``: the median flow of the frame's pixels whose ED is at most the frame's median ED, or ``affine``:
+#: an affine flow field fitted to those pixels (``eponet.nets.unet.affine_flow_residual``).
+FLOW_CENTRINGS = ("none", "rigid", "affine")
 
 #: Percentile of the ED values around a frame that sets its scale.
 ED_PERCENTILE = 95.0

@@ -8,11 +8,16 @@ from torch import nn
 
 from eponet.core.motion import ED_ENCODINGS, FLOW_CENTRINGS, encode_ed
 
-__all__ = ["EpoUNet", "INPUT_CHANNELS", "FLOW_CENTRINGS", "InferenceUNet", "centre_flow"]
+__all__ = ["EpoUNet", "INPUT_CHANNELS", "FLOW_CENTRINGS", "InferenceUNet", "affine_flow_residual", "centre_flow"]
 
 #: Which channels of a (dx, dy, ED) motion image each input modality uses.
 INPUT_CHANNELS = {"ed+flow": (0, 1, 2), "flow": (0, 1), "ed": (2,)}
 
+
+
+def _rigid_pixels(ed: torch.Tensor) -> torch.Tensor:
+    """``(B, N)`` bool: the pixels of each frame whose ED ``(B, N)`` is at most the frame's median ED."""
+    return ed <= ed.median(dim=1, keepdim=True).values
 
 
 def centre_flow(motion_images: torch.Tensor) -> torch.Tensor:
@@ -22,12 +27,46 @@ def centre_flow(motion_images: torch.Tensor) -> torch.Tensor:
     object its motion relative to it. Where ED is constant (a zeroed ED channel) that is the median over the frame.
     A new tensor; the ED channel is unchanged."""
     flow = motion_images[:, :2].flatten(2)
-    ed = motion_images[:, 2].flatten(1)
-    rigid = ed <= ed.median(dim=1, keepdim=True).values
+    rigid = _rigid_pixels(motion_images[:, 2].flatten(1))
     reference = flow.masked_fill(~rigid[:, None], float("nan")).nanmedian(dim=2).values
     out = motion_images.clone()
     out[:, :2] -= reference[:, :, None, None]
     return out
+
+
+def affine_flow_residual(motion_images: torch.Tensor, refits: int = 1) -> torch.Tensor:
+    """(dx, dy, ED) motion images ``(B, 3, H, W)`` with each frame's flow channels less an affine flow field
+    ``(dx, dy) = A (x, y, 1)`` fitted by least squares to the pixels whose ED is at most the frame's median ED,
+    then refitted ``refits`` times to those of them whose residual is at most their median residual (a trimmed
+    fit: the rigid part's own outliers, e.g. parallax of near objects, leave it). A camera that pans, tilts,
+    rolls or zooms over a distant scene moves its pixels by nearly such a field (a homography's first-order
+    terms), so what is left is the object's motion relative to the scene, near zero on the scene, where
+    :func:`centre_flow` removes only the translation. ``x, y`` run over [-1, 1] across the frame, so the fit does
+    not depend on its size. Where ED is constant (a zeroed ED channel) the fit is over the whole frame.
+    A new tensor; the ED channel is unchanged."""
+    b, _, h, w = motion_images.shape
+    flow = motion_images[:, :2].flatten(2).float()  # (B, 2, N)
+    gy, gx = torch.meshgrid(torch.linspace(-1.0, 1.0, h), torch.linspace(-1.0, 1.0, w), indexing="ij")
+    basis = torch.stack([gx.flatten(), gy.flatten(), torch.ones(h * w)], dim=1).to(flow.device)  # (N, 3)
+    rigid = _rigid_pixels(motion_images[:, 2].flatten(1))
+    used = rigid
+    ridge = 1e-6 * torch.eye(3, device=flow.device)
+    for step in range(refits + 1):
+        weight = used.float()
+        normal = torch.einsum("bn,ni,nj->bij", weight, basis, basis) + ridge  # (B, 3, 3)
+        rhs = torch.einsum("bn,ni,bcn->bic", weight, basis, flow)  # (B, 3, 2)
+        coefficients = torch.linalg.solve(normal, rhs)  # (B, 3, 2)
+        residual = flow - torch.einsum("ni,bic->bcn", basis, coefficients)
+        if step < refits:
+            size = residual.norm(dim=1).masked_fill(~rigid, float("nan"))
+            used = rigid & (size <= size.nanmedian(dim=1, keepdim=True).values)
+    out = motion_images.clone()
+    out[:, :2] = residual.view(b, 2, h, w).to(out.dtype)
+    return out
+
+
+#: What ``flow_centring`` subtracts from the flow channels (:data:`eponet.core.motion.FLOW_CENTRINGS`).
+_CENTRING = {"rigid": centre_flow, "affine": affine_flow_residual}
 
 #: Pixels per block of :class:`InferenceUNet`'s head (its hidden layer, 4096 x 32 floats, fits a core's cache).
 HEAD_BLOCK = 4096
@@ -50,7 +89,8 @@ class EpoUNet(nn.Module):
     2**depth: the decoder resizes to each skip's size). Output: logits ``(B, 1, H, W)``; apply a sigmoid for
     the foreground probability. :meth:`select_inputs` turns the pipeline's motion images into that input,
     saturating the ED channel as ``ed_encoding`` says (``clip``, the paper's, or ``log``) and centring the flow
-    channels as ``flow_centring`` says (``none``, the paper's, or ``rigid``: :func:`centre_flow`).
+    channels as ``flow_centring`` says (``none``, the paper's; ``rigid``: :func:`centre_flow`; ``affine``:
+    :func:`affine_flow_residual`).
     """
 
     def __init__(self, *, inputs: str = "ed+flow", depth: int = 4, widths: tuple[int, ...] = (16, 32, 64, 128),
@@ -109,8 +149,8 @@ class EpoUNet(nn.Module):
         """The channels of full (dx, dy, ED) motion images ``(B, 3, H, W)`` that this network reads, the ED
         channel (scaled over a window of frames, unsaturated) saturated by ``ed_encoding``, the flow centred by
         ``flow_centring``. A new tensor."""
-        if self.flow_centring == "rigid" and 0 in self.channels:
-            motion_images = centre_flow(motion_images)
+        if self.flow_centring != "none" and 0 in self.channels:
+            motion_images = _CENTRING[self.flow_centring](motion_images)
         x = motion_images[:, list(self.channels)]
         if 2 in self.channels:
             ed = self.channels.index(2)

@@ -35,7 +35,8 @@ _MODEL = (
     Param("ed_encoding", "choice", "clip", "how the network saturates the scaled ED channel: clip at "
           "1 (the paper) or log (1 + ln ED above 1)", choices=ED_ENCODINGS),
     Param("flow_centring", "choice", "none", "what the network subtracts from each frame's flow channels: none (the "
-          "paper) or rigid (the median flow of the pixels whose ED is at most the frame's median)",
+          "paper), rigid (the median flow of the pixels whose ED is at most the frame's median) or affine "
+          "(an affine flow field fitted to those pixels)",
           choices=FLOW_CENTRINGS),
 )
 _OPTIMIZER = (

@@ -57,8 +57,37 @@ def test_rigid_flow_centring_removes_the_flow_of_the_low_ed_part_of_each_frame()
     shifted[:, 0] += 5.0
     assert torch.allclose(EpoUNet(flow_centring="rigid").select_inputs(shifted), x)
     assert EpoUNet().select_inputs(images)[:, :2].equal(images[:, :2])  # the paper's: unchanged
-    with pytest.raises(ValueError, match="flow_centring: expected one of none, rigid"):
+    with pytest.raises(ValueError, match="flow_centring: expected one of none, rigid, affine"):
         EpoUNet(flow_centring="mean")
+
+
+def test_affine_flow_centring_removes_a_zoom_and_roll_of_the_camera_but_keeps_the_objects_motion():
+    # a camera that zooms, rolls and pans over a rigid scene moves pixel (x, y) in [-1, 1]^2 by an affine field;
+    # an object on 20% of the frame (high ED) moves by (4, 2) relative to it; 10% of the scene's pixels are near
+    # rigid objects with parallax (ED at the median, flow off the field by 6 px): the trimmed refit drops them
+    h, w = 20, 30
+    gy, gx = torch.meshgrid(torch.linspace(-1, 1, h), torch.linspace(-1, 1, w), indexing="ij")
+    field = torch.stack([0.8 * gx - 0.3 * gy + 2.0, 0.3 * gx + 0.8 * gy - 1.0])
+    images = torch.zeros(1, 3, h, w)
+    images[0, :2] = field
+    images[0, 2] = 0.1 + 0.01 * torch.rand(h, w, generator=torch.Generator().manual_seed(0))
+    images[0, :2, :4] += torch.tensor([4.0, 2.0])[:, None, None]  # the object: rows 0-3
+    images[0, 2, :4] = 3.0
+    images[0, 0, 10:12] += 6.0  # parallax of a near rigid object, rows 10-11, low ED
+    images[0, 2, 10:12] = 0.05
+    x = EpoUNet(flow_centring="affine").select_inputs(images)
+    residual = x[0, :2]
+    assert residual[:, 4:10].abs().max() < 1e-4 and residual[:, 12:].abs().max() < 1e-4  # the scene: zero
+    assert torch.allclose(residual[:, :4].mean(dim=(1, 2)), torch.tensor([4.0, 2.0]), atol=1e-4)
+    assert torch.allclose(residual[0, 10:12], torch.full((2, w), 6.0), atol=1e-4)
+    assert torch.equal(x[:, 2], EpoUNet().select_inputs(images)[:, 2])  # ED as without the centring
+    # the translation-only centring cannot remove the zoom and roll: the scene keeps up to 1.1 px of flow
+    assert EpoUNet(flow_centring="rigid").select_inputs(images)[0, :2, 12:].abs().max() > 1.0
+    # without ED (a zeroed channel) the fit is over the whole frame and still removes a pure affine field
+    flat = torch.zeros(1, 3, h, w)
+    flat[0, :2] = field
+    assert EpoUNet(flow_centring="affine").select_inputs(flat)[0, :2].abs().max() < 1e-4
+    assert InferenceUNet(EpoUNet(flow_centring="affine")).select_inputs(images).equal(x)
 
 
 def test_head_has_the_papers_128_channels():
