@@ -25,20 +25,25 @@ class DisFlow:
     stops at 1, half the frame size, and ``fast``/``ultrafast`` at 2), e.g. 0 for sharper object boundaries
     at about three times the cost. ``patch_stride`` (px between the patches searched; ``medium``: 3) and
     ``refinement_iterations`` (fixed-point iterations of the variational refinement at every level;
-    ``medium``: 5) override the preset's: the patch search's cost falls with the square of the stride."""
+    ``medium``: 5) override the preset's: the patch search's cost falls with the square of the stride.
+    ``backward_finest_scale`` sets the backward flow's finest level apart (default: ``finest_scale``); the
+    backward flow only tests where trajectories end (and moves the last frame), so it may be coarser."""
 
     def __init__(self, *, preset: str = "medium", finest_scale: int | None = None, patch_stride: int | None = None,
-                 refinement_iterations: int | None = None):
+                 refinement_iterations: int | None = None, backward_finest_scale: int | None = None):
         self.preset = preset
         self.finest_scale = finest_scale
         self.patch_stride = patch_stride
         self.refinement_iterations = refinement_iterations
+        self.backward_finest_scale = backward_finest_scale
 
-    def create(self) -> cv2.DISOpticalFlow:
-        """A configured OpenCV DIS object (one per thread: it keeps buffers between calls)."""
+    def create(self, finest_scale: int | None = None) -> cv2.DISOpticalFlow:
+        """A configured OpenCV DIS object (one per thread: it keeps buffers between calls), at ``finest_scale``
+        when given instead of the stage's."""
         dis = cv2.DISOpticalFlow_create(PRESETS[self.preset])
-        if self.finest_scale is not None:
-            dis.setFinestScale(self.finest_scale)
+        finest_scale = self.finest_scale if finest_scale is None else finest_scale
+        if finest_scale is not None:
+            dis.setFinestScale(finest_scale)
         if self.patch_stride is not None:
             dis.setPatchStride(self.patch_stride)
         if self.refinement_iterations is not None:
@@ -47,7 +52,9 @@ class DisFlow:
 
     def estimate(self, video):
         dis = self.create()
-        return pairwise_flow(video, lambda a, b: dis.calc(a, b, None), desc="flow (dis)")
+        backward = dis if self.backward_finest_scale is None else self.create(self.backward_finest_scale)
+        return pairwise_flow(video, lambda a, b: dis.calc(a, b, None), desc="flow (dis)",
+                             calc_backward=lambda a, b: backward.calc(a, b, None))
 
 
 @hookimpl
@@ -66,6 +73,8 @@ def eponet_stages():
                 Param("refinement_iterations", "int", None, "fixed-point iterations of the variational refinement "
                       "per level (default: the preset's, 5 for medium; 0: none)", minimum=0, maximum=100,
                       nullable=True),
+                Param("backward_finest_scale", "int", None, "finest pyramid level of the backward flow (default: "
+                      "finest_scale's)", minimum=0, maximum=6, nullable=True),
             ),
             doc="OpenCV DIS optical flow (default; preset medium forward+backward is R, the benchmarks' speed unit)",
         )

@@ -82,3 +82,15 @@ def test_flo_reader_resizes_to_processing_size_and_names_missing_files(tmp_path)
     write_flo(tmp_path / "seq" / "backward" / "b.flo", np.zeros((10, 10, 2), np.float32))
     with pytest.raises(InputError, match=r"backward/b.flo: flow is 10x10, expected 60x40"):
         FloFlow(path=str(tmp_path)).estimate(full)
+
+
+def test_dis_backward_finest_scale_sets_only_the_backward_flows_level(shared_data):
+    root = shared_data / "flow-gt" / "middlebury" / "RubberWhale"
+    video = _pair(root / "frame10.png", root / "frame11.png")
+    fine, coarse = DisFlow(finest_scale=0).estimate(video), DisFlow(finest_scale=1).estimate(video)
+    mixed = DisFlow(finest_scale=0, backward_finest_scale=1).estimate(video)
+    assert np.array_equal(mixed.forward, fine.forward)
+    # (OpenCV's DIS object keeps buffers between calls, so one that computes only backward flows may differ from
+    # one that alternates directions by thousandths of a pixel)
+    assert np.abs(mixed.backward - coarse.backward).mean() < 0.01 < np.abs(fine.backward - coarse.backward).mean()
+    assert DisFlow(finest_scale=0, backward_finest_scale=1).create().getFinestScale() == 0
