@@ -162,7 +162,9 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             fusion: dict | None = None, plus: bool = False, recipe_rigidity: dict | None = None,
             run: dict | None = None, only: set[str] | None = None, trajectories: dict | None = None,
             seeds: tuple[int, ...] = (0,), crf_settings: dict | None = None, run_seed: int = 0,
-            flow: dict | None = None, motion_net: dict | None = None, recipe_model: dict | None = None) -> dict[str, dict]:
+            flow: dict | None = None, motion_net: dict | None = None, recipe_model: dict | None = None,
+            teacher: Path | None = None, teacher_seeds: tuple[int, ...] = (0, 1), teacher_share: float = 0.5,
+            ) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
@@ -172,7 +174,9 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     ``epo+`` preset with both. ``run``: the spec's ``run`` settings; ``only``: score these sequences only;
     ``crf_settings``: merged onto the refiner (the preset's, or the one ``refiner`` names); ``run_seed``: the held-out
     runs' spec seed (RANSAC, self-training), not the networks'; ``flow``, ``motion_net``: settings merged onto the
-    preset's flow stage and onto the fold's motion network when scoring."""
+    preset's flow stage and onto the fold's motion network when scoring. ``teacher``: a folder of fold networks
+    like ``weights`` (seeds ``teacher_seeds``) that each fold's recipe distils (``teacher: {weights: ..., share:
+    teacher_share}``), i.e. networks trained without the same held-out sequences."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
@@ -181,6 +185,10 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})
         doc["model"].update(recipe_model or {})
         doc["seed"] = seed
+        if teacher is not None:
+            doc["teacher"] = {"share": teacher_share, "weights": [
+                str(teacher / f"fold{i}" / ("" if s == teacher_seeds[0] else f"seed{s}") / "weights.pt")
+                for s in teacher_seeds]}
         return doc
 
     def folder(i, seed):
@@ -263,6 +271,10 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", default="0",
                         help="epo: comma-separated training seeds; the held-out sequences run the mean of the seeds' "
                         "networks (0,1: the epo preset's pair; the first seed's are fold<i>/weights.pt)")
+    parser.add_argument("--teacher", type=Path, default=None,
+                        help="distil: each fold's recipe learns from this folder's fold networks (like --weights)")
+    parser.add_argument("--teacher-seeds", default="0,1", help="the teacher folder's seeds (default: 0,1, a pair)")
+    parser.add_argument("--teacher-share", type=float, default=0.5, help="the teachers' share of the target")
     parser.add_argument("--weights", type=Path, default=None,
                         help="epo: folder of already trained fold<i>/weights.pt to score (default: --out)")
     parser.add_argument("--run", nargs="*", default=[],
@@ -317,13 +329,16 @@ def main(argv=None) -> int:
         crf = key_values(args.crf)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
-                               trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model)
+                               trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
+                               args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
             meta["recipe_rigidity"] = recipe_rigidity
         if recipe_model:
             meta["recipe_model"] = recipe_model
+        if args.teacher:
+            meta["teacher"] = {"folder": str(args.teacher), "seeds": args.teacher_seeds, "share": args.teacher_share}
         if run:
             meta["run"] = run
         if crf:  # (kept out of the default's record: earlier reports still merge)

@@ -20,9 +20,10 @@ __all__ = ["TASKS", "DEFAULT_TIMEOUT", "TrainConfig", "Phase", "DataSource", "lo
 
 #: What ``eponet train`` can train: the EpO motion network, or the EpO+ fusion on top of a trained one.
 TASKS = ("motion_net", "fusion")
-TOP_LEVEL = ("task", "seed", "model", "geometry", "phases", "validation", "optimizer", "loss", "input_dropout",
-             "augment", "output", "cache", "device", "threads", "distributed")
-FUSION_TOP_LEVEL = TOP_LEVEL + ("motion_net", "appearance", "clips")
+_COMMON_TOP_LEVEL = ("task", "seed", "model", "geometry", "phases", "validation", "optimizer", "loss", "input_dropout",
+                     "augment", "output", "cache", "device", "threads", "distributed")
+TOP_LEVEL = _COMMON_TOP_LEVEL + ("teacher",)
+FUSION_TOP_LEVEL = _COMMON_TOP_LEVEL + ("motion_net", "appearance", "clips")
 
 #: Shared by both tasks' optimiser sections.
 _EMA = Param("ema", "float", 0.0, "decay of an exponential moving average of the weights, updated every step, that "
@@ -67,6 +68,13 @@ _LOSS = (
     Param("name", "choice", "bce", "training loss: bce (the paper) or bce+iou (adds a per-frame soft Jaccard term, "
           "which optimises J directly)", choices=LOSSES),
     Param("iou_weight", "float", 1.0, "weight of the soft Jaccard term (bce+iou)", minimum=0.0),
+)
+_TEACHER = (
+    Param("weights", "list", [], "motion networks (built-in names or weights files) whose mean foreground probability "
+          "on each training sample is mixed into the target: distillation, e.g. of an ensemble into one network "
+          "([]: off)"),
+    Param("share", "float", 0.5, "the teachers' share of the target: (1 - share) x ground truth + share x their "
+          "probability", minimum=0.0, maximum=1.0),
 )
 _OUTPUT = (Param("dir", "path", None, "folder for checkpoints, weights, curves and the model card", required=True),)
 _CACHE = (
@@ -181,6 +189,7 @@ class TrainConfig:
     clips: dict = field(default_factory=dict)
     loss: dict = field(default_factory=lambda: {"name": "bce", "iou_weight": 1.0})
     distributed: dict = field(default_factory=lambda: {"timeout": DEFAULT_TIMEOUT})
+    teacher: dict = field(default_factory=lambda: {"weights": [], "share": 0.5})
 
 
 def load_train_config(path: str | Path, overrides: list[str] = ()) -> TrainConfig:
@@ -249,6 +258,12 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
     output = section("output", _OUTPUT)
     cache = section("cache", _CACHE)
     distributed = section("distributed", _DISTRIBUTED)
+    teacher = section("teacher", _TEACHER) if task == "motion_net" else {"weights": [], "share": 0.5}
+    if not (isinstance(teacher.get("weights"), list) and all(isinstance(w, str) and w for w in teacher["weights"])):
+        problems.append(f"teacher.weights: expected a list of weights names or files, got {teacher.get('weights')!r}")
+    else:  # files relative to the spec, like the other paths; built-in names as they are
+        teacher["weights"] = [str(resolve("teacher.weights", w)) if w.endswith(".pt") else w
+                              for w in teacher["weights"]]
     device = document.get("device", "auto")
     if device not in ("auto", "cpu", "cuda"):
         problems.append(f"device: expected one of 'auto', 'cpu', 'cuda', got {device!r}")
@@ -329,5 +344,5 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
         optimizer=optimizer, input_dropout=dropout, augment=augment, output_dir=resolve("output.dir", output["dir"]),
         cache_enabled=cache["enabled"], cache_dir=resolve("cache.dir", cache["dir"]) or default_cache_dir(),
         device=device, threads=threads, file=file, document=document, stages=stages, clips=clips, loss=loss,
-        distributed=distributed,
+        distributed=distributed, teacher=teacher,
     )

@@ -35,6 +35,32 @@ class MotionNetTrainer(Trainer):
         super().__init__(config, context=context)
         self.model = EpoUNet(**self.model_config()).to(self.device).to(memory_format=torch.channels_last)
         self.dropout = InputDropout(**config.input_dropout)
+        self.teachers = self._load_teachers(config.teacher["weights"])
+
+    def _load_teachers(self, weights: list[str]) -> list:
+        """The ``teacher`` networks, frozen, as :class:`~eponet.nets.InferenceUNet` on the training device (their
+        sha256 go to the model card)."""
+        import torch
+
+        from eponet.nets import InferenceUNet
+        from eponet.plugins.motion_net.epo_unet import load_unet
+
+        teachers, self.teacher_sha256 = [], []
+        for name in weights:
+            model, digest = load_unet(name)
+            teachers.append(InferenceUNet(model).to(self.device).to(memory_format=torch.channels_last))
+            self.teacher_sha256.append(digest)
+        return teachers
+
+    def teacher_probability(self, images):
+        """The teachers' mean foreground probability ``(B, 1, H, W)`` of motion images ``(B, 3, H, W)`` (a float32
+        tensor on the training device), each network reading them as its own ``select_inputs`` says."""
+        import torch
+
+        with torch.inference_mode():
+            total = sum(torch.sigmoid(t(t.select_inputs(images).contiguous(memory_format=torch.channels_last)))
+                        for t in self.teachers)
+        return (total / len(self.teachers)).clone()
 
     def model_config(self) -> dict:
         model = dict(self.config.model)
@@ -111,20 +137,25 @@ class MotionNetTrainer(Trainer):
             h, w = min(b.height for b in boxes), min(b.width for b in boxes)
             chosen, replacement = self.dropout.draw(len(batch), (h, w), epoch, rng)
             shifts = draw_flow_shift(len(batch), self.config.augment.get("flow_shift", 0.0), rng)
-            images, masks = [], []
+            images, clean, masks = [], [], []
             for i in sampler.rows(batch):
                 s, t = frames[i]
                 image, mask = apply_crop_flip(data[s].motion[t].astype(np.float32), data[s].masks[t], boxes[i])
                 image, mask = image[:, :h, :w], mask[:h, :w]
-                if chosen[i]:
-                    image[ED_CHANNEL] = replacement[np.count_nonzero(chosen[:i])]
                 if shifts is not None:
                     image[:ED_CHANNEL] += shifts[i]
+                if self.teachers:  # the teachers read the sample before input-dropout
+                    clean.append(image.copy())
+                if chosen[i]:
+                    image[ED_CHANNEL] = replacement[np.count_nonzero(chosen[:i])]
                 images.append(image)
                 masks.append(mask)
             x = torch.from_numpy(np.stack(images)).to(self.device)
             x = self.model.select_inputs(x).contiguous(memory_format=torch.channels_last)
             y = torch.from_numpy(np.stack(masks).astype(np.float32)).to(self.device)[:, None]
+            if self.teachers:
+                share = self.config.teacher["share"]
+                y = (1.0 - share) * y + share * self.teacher_probability(torch.from_numpy(np.stack(clean)).to(self.device))
             loss = segmentation_loss(self.net(x), y, **self.config.loss)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -151,8 +182,14 @@ class MotionNetTrainer(Trainer):
         pred = np.concatenate(probs) >= 0.5
         return loss, len(seq.masks), sequence_j(pred, seq.masks.astype(bool))
 
+    def weights_meta(self) -> dict:
+        """The teachers (names or files, sha256, share) of a distilled network."""
+        if not self.teachers:
+            return {}
+        return {"teacher": {**self.config.teacher, "sha256": self.teacher_sha256}}
+
     def model_card(self, summary: dict, history: list[dict]) -> str:
-        return model_card(self.config, summary, history)
+        return model_card(self.config, {**summary, "teacher_sha256": self.teacher_sha256}, history)
 
 
 def model_card(config: TrainConfig, summary: dict, history: list[dict]) -> str:
@@ -173,6 +210,12 @@ def model_card(config: TrainConfig, summary: dict, history: list[dict]) -> str:
         f"- input-dropout: {d['probability']:.0%} of samples, ED zeroed for {d['zero_epochs']} epochs, then {d['then']}",
         f"- augmentation: crops {a['crop']}, flips {a['flip']}, flow shift std {a.get('flow_shift', 0.0)}"
         + (f"; weights exported as an exponential moving average (decay {o['ema']})" if o.get("ema") else ""),
+        *([f"- distilled: target (1 - {config.teacher['share']}) x ground truth + {config.teacher['share']} x the mean "
+           f"probability of {len(config.teacher['weights'])} teacher network(s): "
+           + ", ".join(f"`{Path(w).name}`" + (f" (sha256 `{d}`)" if d else "")
+                       for w, d in zip(config.teacher["weights"], summary.get("teacher_sha256") or
+                                       [None] * len(config.teacher["weights"])))]
+          if config.teacher["weights"] else []),
         "- geometry: " + (", ".join(f"{k} {v.plugin} {v.params}" for k, v in config.geometry.stages.items())
                           if config.geometry else "not recorded"),
         "", "## Data", "",

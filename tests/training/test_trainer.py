@@ -107,6 +107,40 @@ def test_weight_average_is_validated_exported_and_resumed(tmp_path):
         assert torch.equal(value, resumed.ema.module.state_dict()[name]), name
 
 
+def test_a_student_learns_from_its_teachers_where_the_ground_truth_says_nothing(tmp_path):
+    data = easy_sequences()
+    teacher = _trainer(_config(tmp_path / "teacher"), data).run()
+    # the student's training masks are empty: with share 1 all it learns comes from the teachers' probability
+    blind = [SequenceData(s.name, s.motion, np.zeros_like(s.masks), s.frames) for s in data]
+    config = _config(tmp_path / "student")
+    config.phases = [Phase("blind", DataSource("davis", {"root": tmp_path / "blind"}), 10)]
+    config.teacher = {"weights": [teacher["weights"], teacher["weights"]], "share": 1.0}
+    student = MotionNetTrainer(config)
+    student.data = lambda source: blind if source is config.phases[0].data else data
+    summary = student.run()
+    from eponet.plugins.motion_net.epo_unet import EpoUNetStage
+
+    stage = EpoUNetStage(weights=teacher["weights"], device="cpu")
+    images = data[0].motion.astype(np.float32)
+    np.testing.assert_allclose(student.teacher_probability(torch.from_numpy(images))[:, 0].numpy(),
+                               stage.predict(images), atol=1e-5)
+    with open(tmp_path / "student" / "train" / "history.csv") as handle:
+        assert float(list(csv.DictReader(handle))[-1]["val_j"]) > 0.7  # against the true masks
+    card = (tmp_path / "student" / "train" / "model-card.md").read_text()
+    assert "distilled: target (1 - 1.0) x ground truth + 1.0 x the mean probability of 2 teacher" in card
+    assert card.count(teacher["sha256"]) == 2
+    meta = torch.load(summary["weights"], weights_only=False)["meta"]
+    assert meta["teacher"]["sha256"] == [teacher["sha256"]] * 2 and meta["teacher"]["share"] == 1.0
+    # without teachers, the same blind data teaches nothing
+    config = _config(tmp_path / "alone")
+    config.phases = [Phase("blind", DataSource("davis", {"root": tmp_path / "blind"}), 3)]
+    alone = MotionNetTrainer(config)
+    alone.data = lambda source: blind if source is config.phases[0].data else data
+    alone.run()
+    with open(tmp_path / "alone" / "train" / "history.csv") as handle:
+        assert float(list(csv.DictReader(handle))[-1]["val_j"]) < 0.3
+
+
 def test_sequence_j_drops_first_and_last_frame():
     gt = np.zeros((4, 2, 2), bool)
     gt[:, 0, 0] = True
