@@ -187,7 +187,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         doc["seed"] = seed
         if teacher is not None:
             doc["teacher"] = {"share": teacher_share, "weights": [
-                str(teacher / f"fold{i}" / ("" if s == teacher_seeds[0] else f"seed{s}") / "weights.pt")
+                str(teacher.resolve() / f"fold{i}" / ("" if s == teacher_seeds[0] else f"seed{s}") / "weights.pt")
                 for s in teacher_seeds]}
         return doc
 

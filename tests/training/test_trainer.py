@@ -1,5 +1,4 @@
 import csv
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -55,7 +54,7 @@ def test_short_training_lowers_the_loss_and_segments_the_easy_set(tmp_path):
     assert float(rows[-1]["val_j"]) > 0.8
     assert (tmp_path / "train" / "curves.png").stat().st_size > 1000
     card = (tmp_path / "train" / "model-card.md").read_text()
-    assert summary["sha256"] in card and f"| 10 | easy |" in card and "ED encoding clip" in card
+    assert summary["sha256"] in card and "| 10 | easy |" in card and "ED encoding clip" in card
     # the exported weights load through the plugin, checksum verified, and reproduce the validation score
     from eponet.plugins.motion_net.epo_unet import EpoUNetStage
 
