@@ -13,9 +13,9 @@ LOSSES = ("bce", "bce+iou")
 def soft_jaccard_loss(logits, target, smooth: float = 1.0):
     """Mean over frames of ``1 - (sum p y + smooth) / (sum (p + y - p y) + smooth)`` with ``p = sigmoid(logits)``.
 
-    ``logits`` and ``target`` (in {0, 1}) are float tensors ``(N, ...)``; one frame is one leading index. The
-    smoothing term keeps frames without foreground well defined: their loss is ``sum p / (sum p + smooth)``,
-    zero when nothing is predicted. Scale-free (it does not depend on the frame size) and in [0, 1].
+    ``logits`` and ``target`` (in {0, 1}, or in [0, 1] when distilling) are float tensors ``(N, ...)``; one frame
+    is one leading index. The smoothing term keeps frames without foreground well defined: their loss is
+    ``sum p / (sum p + smooth)``, zero when nothing is predicted. Scale-free (it does not depend on the frame size) and in [0, 1].
     """
     import torch
 
@@ -27,7 +27,7 @@ def soft_jaccard_loss(logits, target, smooth: float = 1.0):
 
 
 def segmentation_loss(logits, target, name: str = "bce", iou_weight: float = 1.0):
-    """The training loss ``name`` (one of :data:`LOSSES`) of logits against binary targets of the same shape."""
+    """The training loss ``name`` (one of :data:`LOSSES`) of logits against targets in [0, 1] of the same shape."""
     import torch.nn.functional as F
 
     if name not in LOSSES:

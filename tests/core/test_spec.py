@@ -18,7 +18,8 @@ def _flow_only(frames_dir, out, **extra):
     return doc
 
 
-FLOW = {"preset": "medium", "finest_scale": 0, "patch_stride": None, "refinement_iterations": None}
+FLOW = {"preset": "medium", "finest_scale": 0, "patch_stride": None, "refinement_iterations": None,
+        "backward_finest_scale": None}
 
 
 def test_valid_spec_resolves_defaults(frames_dir, tmp_path):
