@@ -139,6 +139,8 @@ def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
     assert_shipped_weights("epo-davis-centred", "motion_net")
     centred = EpoUNetStage(weights="epo-davis-centred").models[0]
     assert centred.flow_centring == "rigid" and centred.config["flow_centring"] == "rigid"
+    assert_shipped_weights("epo-davis-distilled", "motion_net")
+    assert len(EpoUNetStage(weights="epo-davis-distilled").models) == 1  # one network for the pair's cost of two
 
 
 def test_epo_preset_on_the_embedded_demo_reaches_the_target_j(tmp_path):
