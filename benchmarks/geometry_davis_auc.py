@@ -77,10 +77,9 @@ def dis_flow(gray: np.ndarray, flow: dict | None = None):
     from eponet.core.types import FlowPair
     from eponet.plugins.flow.dis import DisFlow
 
-    stage = DisFlow(**(flow or {}))
-    dis, back = stage.create(), stage.create(stage.backward_finest_scale)
-    fw = np.stack([dis.calc(gray[t], gray[t + 1], None) for t in range(len(gray) - 1)])
-    bw = np.stack([back.calc(gray[t + 1], gray[t], None) for t in range(len(gray) - 1)])
+    forward, backward = DisFlow(**(flow or {})).calculators()
+    fw = np.stack([forward(gray[t], gray[t + 1]) for t in range(len(gray) - 1)])
+    bw = np.stack([backward(gray[t + 1], gray[t]) for t in range(len(gray) - 1)])
     return FlowPair(fw.astype(np.float32), bw.astype(np.float32))
 
 

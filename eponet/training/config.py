@@ -258,7 +258,7 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
     output = section("output", _OUTPUT)
     cache = section("cache", _CACHE)
     distributed = section("distributed", _DISTRIBUTED)
-    teacher = section("teacher", _TEACHER) if task == "motion_net" else {"weights": [], "share": 0.5}
+    teacher = section("teacher", _TEACHER)  # (task fusion: rejected above as an unknown key, so the defaults)
     if not (isinstance(teacher.get("weights"), list) and all(isinstance(w, str) and w for w in teacher["weights"])):
         problems.append(f"teacher.weights: expected a list of weights names or files, got {teacher.get('weights')!r}")
     else:  # files relative to the spec, like the other paths; built-in names as they are

@@ -60,7 +60,7 @@ class MotionNetTrainer(Trainer):
         with torch.inference_mode():
             total = sum(torch.sigmoid(t(t.select_inputs(images).contiguous(memory_format=torch.channels_last)))
                         for t in self.teachers)
-        return (total / len(self.teachers)).clone()
+        return (total / len(self.teachers)).clone()  # (a normal tensor: autograd cannot save inference tensors)
 
     def model_config(self) -> dict:
         model = dict(self.config.model)

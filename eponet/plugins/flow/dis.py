@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import cv2
-import numpy as np
 
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
@@ -50,11 +49,16 @@ class DisFlow:
             dis.setVariationalRefinementIterations(self.refinement_iterations)
         return dis
 
-    def estimate(self, video):
+    def calculators(self):
+        """``(forward, backward)``: two-frame functions ``calc(a, b) -> (H, W, 2)`` on grey frames, the second at
+        ``backward_finest_scale`` when it is set (each a configured DIS object of its own then)."""
         dis = self.create()
-        backward = dis if self.backward_finest_scale is None else self.create(self.backward_finest_scale)
-        return pairwise_flow(video, lambda a, b: dis.calc(a, b, None), desc="flow (dis)",
-                             calc_backward=lambda a, b: backward.calc(a, b, None))
+        back = dis if self.backward_finest_scale is None else self.create(self.backward_finest_scale)
+        return (lambda a, b: dis.calc(a, b, None)), (lambda a, b: back.calc(a, b, None))
+
+    def estimate(self, video):
+        forward, backward = self.calculators()
+        return pairwise_flow(video, forward, desc="flow (dis)", calc_backward=backward)
 
 
 @hookimpl
