@@ -116,6 +116,23 @@ def _finite(value):
     return float(value) if value is not None and np.isfinite(value) else None
 
 
+def mixed_source(source) -> dict:
+    """A ``--recipe-data`` source with its folder made absolute; an RBSF-style one is generated here, once,
+    before the folds train side by side."""
+    if not isinstance(source, dict) or len(source) != 1 or next(iter(source)) not in ("davis", "rbsf"):
+        raise SystemExit(f"--recipe-data: expected {{rbsf: {{dir: ...}}}} or {{davis: {{root: ...}}}}, got {source!r}")
+    kind, options = next(iter(source.items()))
+    key = "dir" if kind == "rbsf" else "root"
+    if not isinstance(options, dict) or key not in options:
+        raise SystemExit(f"--recipe-data: {kind}.{key} is missing in {source!r}")
+    options = {**options, key: str(Path(options[key]).resolve())}
+    if kind == "rbsf":
+        from eponet.training.trainer import ensure_rbsf
+
+        ensure_rbsf(options)
+    return {kind: options}
+
+
 def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, trajectories: dict | None = None,
            seed: int = 0, flow: dict | None = None) -> dict[str, dict]:
     """ED ROC AUC per sequence (no training, so the folds only label the rows), the stage seeded with ``seed``;
@@ -164,7 +181,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             seeds: tuple[int, ...] = (0,), crf_settings: dict | None = None, run_seed: int = 0,
             flow: dict | None = None, motion_net: dict | None = None, recipe_model: dict | None = None,
             teacher: Path | None = None, teacher_seeds: tuple[int, ...] = (0, 1), teacher_share: float = 0.5,
-            ) -> dict[str, dict]:
+            recipe_data: list[dict] | None = None) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
@@ -176,7 +193,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     runs' spec seed (RANSAC, self-training), not the networks'; ``flow``, ``motion_net``: settings merged onto the
     preset's flow stage and onto the fold's motion network when scoring. ``teacher``: a folder of fold networks
     like ``weights`` (seeds ``teacher_seeds``) that each fold's recipe distils (``teacher: {weights: ..., share:
-    teacher_share}``), i.e. networks trained without the same held-out sequences."""
+    teacher_share}``), i.e. networks trained without the same held-out sequences. ``recipe_data``: data sources
+    (``{rbsf: {dir: ..., scene: {...}}}``, absolute paths) mixed into the recipe's DAVIS phase."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
@@ -185,6 +203,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})
         doc["model"].update(recipe_model or {})
         doc["seed"] = seed
+        if recipe_data:
+            doc["phases"][0]["data"] = [doc["phases"][0]["data"], *recipe_data]
         if teacher is not None:
             doc["teacher"] = {"share": teacher_share, "weights": [
                 str(teacher.resolve() / f"fold{i}" / ("" if s == teacher_seeds[0] else f"seed{s}") / "weights.pt")
@@ -271,6 +291,9 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", default="0",
                         help="epo: comma-separated training seeds; the held-out sequences run the mean of the seeds' "
                         "networks (0,1: the epo preset's pair; the first seed's are fold<i>/weights.pt)")
+    parser.add_argument("--recipe-data", type=yaml.safe_load, action="append", default=[],
+                        help="a data source (YAML) mixed into the recipe's DAVIS phase, e.g. '{rbsf: {dir: runs/rbsf-mix, "
+                             "sequences: 24, scene: {dynamic_texture_probability: 1.0}}}'; repeatable")
     parser.add_argument("--teacher", type=Path, default=None,
                         help="distil: each fold's recipe learns from this folder's fold networks (like --weights)")
     parser.add_argument("--teacher-seeds", default="0,1", help="the teacher folder's seeds (default: 0,1, a pair)")
@@ -327,16 +350,20 @@ def main(argv=None) -> int:
         run = key_values(args.run)
         seeds = tuple(int(s) for s in args.seeds.split(","))
         crf = key_values(args.crf)
+        recipe_data = [mixed_source(source) for source in args.recipe_data]
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
-                               args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share)
+                               args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share,
+                               recipe_data)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
             meta["recipe_rigidity"] = recipe_rigidity
         if recipe_model:
             meta["recipe_model"] = recipe_model
+        if recipe_data:
+            meta["recipe_data"] = json.loads(json.dumps(recipe_data, default=str))
         if args.teacher:
             meta["teacher"] = {"folder": str(args.teacher), "seeds": args.teacher_seeds, "share": args.teacher_share}
         if run:

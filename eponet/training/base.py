@@ -100,8 +100,11 @@ class Trainer(ABC):
         ...
 
     # -- shared ----------------------------------------------------------------------------------
-    def data(self, source: DataSource) -> list:
-        """:meth:`load_data` of ``source``, kept in memory for the whole run."""
+    def data(self, source: DataSource | tuple[DataSource, ...]) -> list:
+        """:meth:`load_data` of ``source``, kept in memory for the whole run; of several sources, their
+        sequences one after the other (an epoch then draws from all of them, in proportion to their frames)."""
+        if isinstance(source, tuple):
+            return [sequence for one in source for sequence in self.data(one)]
         key = json.dumps({"kind": source.kind, **{k: str(v) for k, v in source.options.items()}}, sort_keys=True)
         if key not in self._data:
             self._data[key] = self.load_data(source)
@@ -278,12 +281,16 @@ class Trainer(ABC):
         plot_history(history, self.out / "curves.png")
 
 
-def data_line(source: DataSource) -> str:
-    """One Markdown line describing a training or validation data source."""
+def data_line(source: DataSource | tuple[DataSource, ...]) -> str:
+    """One Markdown line describing a training or validation data source (or sources mixed)."""
+    if isinstance(source, tuple):
+        return " mixed with ".join(data_line(one) for one in source)
     o = source.options
     if source.kind == "rbsf":
+        scene = o.get("scene") or {}
+        settings = "".join(f", {k} {v}" for k, v in sorted(scene.items()))
         return (f"RBSF-style synthetic clips ({o.get('sequences')} x {o.get('frames')} frames, {o.get('size')}, "
-                f"seed {o.get('seed')})")
+                f"seed {o.get('seed')}{settings})")
     chosen = ", ".join(o["sequences"]) if o.get("sequences") else "all sequences"
     excluded = f" except {', '.join(o['exclude'])}" if o.get("exclude") else ""
     return f"DAVIS-layout root `{Path(str(o.get('root'))).name}` {o.get('resolution', '')}: {chosen}{excluded}"

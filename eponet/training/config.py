@@ -93,13 +93,15 @@ _DAVIS = (
     Param("sequences", "list", None, "sequences to use (default: all)", nullable=True),
     Param("exclude", "list", [], "sequences to leave out"),
 )
-_RBSF = (
+RBSF_PARAMS = (
     Param("dir", "path", None, "where the generated data set is written (reused when present)", required=True),
     Param("sequences", "int", 40, "number of clips", minimum=1),
     Param("frames", "int", 30, "frames per clip", minimum=3),
     Param("size", "str", "427x240", "frame size WxH"),
     Param("seed", "int", 0, "generator seed", minimum=0),
 )
+# ``rbsf.scene``: settings of eponet.synth.SceneConfig (e.g. dynamic_texture_probability: 1.0), checked by it
+RBSF_SCENE = "scene"
 # -- task: fusion (EpO+, paper sections 4.3 and 5.2) --------------------------------------------------------
 _FUSION_MODEL = (
     Param("bottleneck", "int", 128, "channels of the 1x1 bottleneck on the appearance features (128 in the paper)",
@@ -157,8 +159,10 @@ class DataSource:
 
 @dataclass
 class Phase:
+    """One training phase. ``data``: one source, or several whose sequences are mixed in each epoch."""
+
     name: str
-    data: DataSource
+    data: DataSource | tuple[DataSource, ...]
     epochs: int
     samples_per_epoch: int | None = None
 
@@ -279,8 +283,21 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
         if task == "fusion" and kind != "davis":
             problems.append(f"{path}: task fusion trains on DAVIS-layout data ({{davis: {{root: ...}}}}), got {kind}")
             return None
-        values, found = validate_params(options or {}, _DAVIS if kind == "davis" else _RBSF, f"{path}.{kind}")
+        if options is not None and not isinstance(options, dict):
+            problems.append(f"{path}.{kind}: expected a mapping of settings, got {options!r}")
+            return None
+        options = dict(options or {})
+        scene = options.pop(RBSF_SCENE, None) if kind == "rbsf" else None
+        values, found = validate_params(options or {}, _DAVIS if kind == "davis" else RBSF_PARAMS, f"{path}.{kind}")
         problems.extend(found)
+        if scene is not None:
+            values[RBSF_SCENE] = scene
+            from eponet.synth.scene import SceneConfig  # local: the generator is only needed for rbsf data
+
+            try:
+                SceneConfig.from_dict(scene)
+            except SpecError as exc:
+                problems.extend(f"{path}.rbsf.scene: {p}" for p in exc.problems)
         key = "root" if kind == "davis" else "dir"
         values[key] = resolve(f"{path}.{kind}.{key}", values.get(key))
         if kind == "davis" and values[key] is not None and not (values[key] / "JPEGImages").is_dir():
@@ -299,7 +316,14 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
             continue
         values, found = validate_params({k: v for k, v in raw.items() if k != "data"}, _PHASE, path)
         problems.extend(found)
-        source = data_source(raw.get("data"), f"{path}.data")
+        raw_data = raw.get("data")
+        if isinstance(raw_data, list):  # several sources, mixed in each epoch
+            if not raw_data:
+                problems.append(f"{path}.data: expected a source or a non-empty list of sources, got []")
+            sources = [data_source(item, f"{path}.data[{j}]") for j, item in enumerate(raw_data)]
+            source = tuple(sources) if sources and None not in sources else None
+        else:
+            source = data_source(raw_data, f"{path}.data")
         if source is not None and not found:
             phases.append(Phase(values["name"], source, values["epochs"], values["samples_per_epoch"]))
     validation = data_source(document["validation"], "validation") if document.get("validation") is not None else None

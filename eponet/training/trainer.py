@@ -14,7 +14,7 @@ from eponet.core.progress import track
 from eponet.training.augment import ED_CHANNEL, InputDropout, apply_crop_flip, draw_crop_flip, draw_flow_shift
 from eponet.training.base import (HISTORY_FIELDS, Trainer, data_line, history_table, plot_history, sequence_j,
                                   trained_line)
-from eponet.training.config import DataSource, TrainConfig
+from eponet.training.config import RBSF_PARAMS, DataSource, TrainConfig
 from eponet.training.data import SequenceData, load_motion_sequences
 from eponet.training.distributed import SINGLE, DistributedContext, barrier
 from eponet.training.losses import segmentation_loss
@@ -84,26 +84,7 @@ class MotionNetTrainer(Trainer):
         return data
 
     def _ensure_rbsf(self, options: dict) -> tuple[Path, str]:
-        from eponet.synth import write_dataset
-
-        width, _, height = options["size"].partition("x")
-        size = (int(width), int(height))
-        root = Path(options["dir"])
-        marker = root / "eponet-rbsf.json"
-        recipe = {k: options[k] for k in ("sequences", "frames", "size", "seed")}
-
-        def ready() -> bool:
-            return marker.is_file() and json.loads(marker.read_text()) == recipe
-
-        if self.context.is_main and not ready():  # under DDP rank 0 writes it, the others wait
-            log.info("generating RBSF-style data in %s", root)
-            write_dataset(root, options["sequences"], options["frames"], size, options["seed"], flow=False, depth=False)
-            atomic_write_bytes(marker, json.dumps(recipe).encode())
-        barrier(self.context)
-        if not ready():
-            raise InputError(f"{root}: rank 0 generated the RBSF-style data there, but {self.context.label} does not "
-                             "see it; put rbsf.dir on storage every machine shares")
-        return root, f"{size[1]}p"
+        return ensure_rbsf(options, self.context)
 
     # -- optimisation ----------------------------------------------------------------------------
     def learning_rate(self, epoch: int, epoch_in_phase: int) -> float:
@@ -226,3 +207,37 @@ def model_card(config: TrainConfig, summary: dict, history: list[dict]) -> str:
                   "at the training resolution)."]
     lines += history_table(history)
     return "\n".join(lines) + "\n"
+
+
+def ensure_rbsf(options: dict, context: DistributedContext = SINGLE) -> tuple[Path, str]:
+    """Generate the RBSF-style data set an ``rbsf`` data source describes (``dir``, ``sequences``, ``frames``,
+    ``size``, ``seed`` and optional ``scene`` settings; missing ones take the training spec's defaults) unless
+    ``dir`` already holds it, as recorded in its ``eponet-rbsf.json``; returns its root and resolution (``240p``
+    for 427x240). Under DDP rank 0 writes it and the others wait for it."""
+    from eponet.synth import write_dataset
+    from eponet.synth.scene import SceneConfig
+
+    options = {p.name: p.default for p in RBSF_PARAMS} | options
+    width, _, height = options["size"].partition("x")
+    size = (int(width), int(height))
+    root = Path(options["dir"])
+    marker = root / "eponet-rbsf.json"
+    recipe = {k: options[k] for k in ("sequences", "frames", "size", "seed")}
+    scene = options.get("scene")
+    if scene:  # the marker of data generated without scene settings stays valid
+        recipe["scene"] = scene
+
+    def ready() -> bool:
+        return marker.is_file() and json.loads(marker.read_text()) == recipe
+
+    if context.is_main and not ready():
+        log.info("generating RBSF-style data in %s", root)
+        config = SceneConfig.from_dict(scene) if scene else None
+        write_dataset(root, options["sequences"], options["frames"], size, options["seed"], config=config,
+                      flow=False, depth=False)
+        atomic_write_bytes(marker, json.dumps(recipe).encode())
+    barrier(context)
+    if not ready():
+        raise InputError(f"{root}: rank 0 generated the RBSF-style data there, but {context.label} does not "
+                         "see it; put rbsf.dir on storage every machine shares")
+    return root, f"{size[1]}p"

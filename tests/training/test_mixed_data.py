@@ -1,0 +1,88 @@
+"""Training phases that mix several data sources, and RBSF-style sources with their own scene settings."""
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from eponet.core.errors import SpecError
+from eponet.training.config import DataSource, Phase, parse_train_config
+from eponet.training.trainer import MotionNetTrainer, ensure_rbsf
+
+from .test_trainer import _config, easy_sequences
+
+
+def _document(data) -> dict:
+    return {"task": "motion_net", "model": {"inputs": "ed+flow"}, "phases": [{"name": "mix", "data": data, "epochs": 1}],
+            "output": {"dir": "out"}}
+
+
+def test_a_phase_mixes_a_list_of_sources_and_each_bad_one_is_named(tmp_path):
+    (tmp_path / "davis" / "JPEGImages").mkdir(parents=True)
+    scene = {"dynamic_texture_probability": 1.0, "num_boxes": [2, 6]}
+    config = parse_train_config(_document([{"davis": {"root": "davis"}}, {"rbsf": {"dir": "syn", "scene": scene}}]),
+                                base_dir=tmp_path)
+    davis, rbsf = config.phases[0].data
+    assert davis.kind == "davis" and davis.options["root"] == tmp_path / "davis"
+    assert rbsf.kind == "rbsf" and rbsf.options["dir"] == tmp_path / "syn" and rbsf.options["scene"] == scene
+    assert rbsf.options["sequences"] == 40 and rbsf.options["frames"] == 30  # the schema's defaults
+    # one source stays one source
+    assert isinstance(parse_train_config(_document({"rbsf": {"dir": "syn"}}), base_dir=tmp_path).phases[0].data,
+                      DataSource)
+    with pytest.raises(SpecError) as error:
+        parse_train_config(_document([{"davis": {"root": "davis"}}, {"rbsf": {"dir": "syn", "frames": 2,
+                                      "scene": {"num_boxs": 3, "fg_fraction": [0.5, 2]}}}, {"vimeo": {}}]),
+                           base_dir=tmp_path)
+    problems = "\n".join(error.value.problems)
+    assert "phases[0].data[1].rbsf.frames: expected an integer >= 3, got 2" in problems
+    assert "phases[0].data[1].rbsf.scene: num_boxs: unknown setting" in problems
+    assert "phases[0].data[1].rbsf.scene: fg_fraction: expected 0.01 <= min <= max <= 0.9, got [0.5, 2]" in problems
+    assert "phases[0].data[2]: expected {davis: {root: ...}} or {rbsf: {dir: ...}}" in problems
+    with pytest.raises(SpecError, match=r"phases\[0\].data: expected a source or a non-empty list of sources"):
+        parse_train_config(_document([]), base_dir=tmp_path)
+    with pytest.raises(SpecError, match=r"phases\[0\].data.rbsf: expected a mapping of settings, got 3"):
+        parse_train_config(_document({"rbsf": 3}), base_dir=tmp_path)
+
+
+def test_an_epoch_draws_from_every_source_of_the_phase(tmp_path):
+    easy = easy_sequences()
+    halves = {"a": easy[:2], "b": easy[2:]}
+    config = _config(tmp_path)
+    a, b = DataSource("davis", {"root": "a"}), DataSource("rbsf", {"dir": "b", "sequences": 2, "frames": 8,
+                                                                    "size": "64x48", "seed": 0})
+    config.phases = [Phase("mix", (a, b), 10)]
+    config.validation = a
+    trainer = MotionNetTrainer(config)
+    loaded = []
+    trainer.load_data = lambda source: loaded.append(source) or halves["a" if source is a else "b"]
+    assert [s.name for s in trainer.data((a, b))] == ["easy0", "easy1", "easy2", "easy3"]
+    trainer.data((a, b))
+    assert loaded == [a, b]  # each source loaded once, kept for the run
+    summary = trainer.run()
+    assert summary["final"]["val_j"] > 0.8
+    card = (tmp_path / "train" / "model-card.md").read_text()
+    assert "mixed with RBSF-style synthetic clips (2 x 8 frames, 64x48, seed 0)" in card
+
+
+def test_rbsf_scene_settings_reach_the_generator_and_its_marker(tmp_path):
+    options = {"dir": tmp_path / "syn", "sequences": 1, "frames": 3, "size": "64x48", "seed": 2,
+               "scene": {"dynamic_texture_probability": 1.0, "num_boxes": [3, 3]}}
+    root, resolution = ensure_rbsf(options)
+    assert (root, resolution) == (tmp_path / "syn", "48p")
+    info = yaml.safe_load((root / "db_info.yml").read_text())
+    assert info["generator"]["config"]["dynamic_texture_probability"] == 1.0
+    assert info["generator"]["config"]["num_boxes"] == [3, 3]
+    marker = root / "eponet-rbsf.json"
+    assert json.loads(marker.read_text())["scene"] == options["scene"]
+    frame = root / "JPEGImages" / "48p" / "rbsf-0000" / "00000.jpg"
+    written = frame.stat().st_mtime_ns
+    ensure_rbsf(options)  # the same recipe: reused, not written again
+    assert frame.stat().st_mtime_ns == written
+    other = {**options, "scene": {"dynamic_texture_probability": 0.0, "num_boxes": [3, 3]}}
+    ensure_rbsf(other)  # other settings: generated again
+    assert json.loads(marker.read_text())["scene"] == other["scene"]
+    assert yaml.safe_load((root / "db_info.yml").read_text())["generator"]["config"]["dynamic_texture_probability"] == 0.0
+    # without scene settings the marker is as before (data sets generated earlier stay valid)
+    plain = Path(ensure_rbsf({k: v for k, v in options.items() if k != "scene"})[0]) / "eponet-rbsf.json"
+    assert json.loads(plain.read_text()) == {"sequences": 1, "frames": 3, "size": "64x48", "seed": 2}
