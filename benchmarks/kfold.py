@@ -39,6 +39,9 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo --out runs/kfold-epo-parallax --preset epo-st \
         --recipe-rigidity degeneracy=parallax border_prior=0.15
         # folds trained on another ED than the recipe's (merged onto its geometry.stages.rigidity)
+    python benchmarks/kfold.py --what epo --out runs/kfold-epo-synmix \
+        --recipe-data '{rbsf: {dir: runs/rbsf-distractors, sequences: 24, scene: {dynamic_texture_probability: 1.0}}}'
+        # synthetic clips (here with moving water in every clip) mixed into each fold's DAVIS phase
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus-pair-grid --seeds 0,1 \
         --crf backend=grid grid_cell=1.0
         # settings merged onto the refiner (the fold folders' fusion/ linked to an earlier run's: nothing retrained)
