@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -209,6 +210,10 @@ def model_card(config: TrainConfig, summary: dict, history: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: What :func:`eponet.synth.write_dataset` writes under its folder (removed before a regeneration).
+GENERATED = ("JPEGImages", "Annotations", "Annotations_unsupervised", "Cameras", "ImageSets")
+
+
 def ensure_rbsf(options: dict, context: DistributedContext = SINGLE) -> tuple[Path, str]:
     """Generate the RBSF-style data set an ``rbsf`` data source describes (``dir``, ``sequences``, ``frames``,
     ``size``, ``seed`` and optional ``scene`` settings; missing ones take the training spec's defaults) unless
@@ -232,6 +237,9 @@ def ensure_rbsf(options: dict, context: DistributedContext = SINGLE) -> tuple[Pa
 
     if context.is_main and not ready():
         log.info("generating RBSF-style data in %s", root)
+        if marker.is_file():  # data of other settings that this function wrote: no stale clip or frame may stay
+            for name in GENERATED:
+                shutil.rmtree(root / name, ignore_errors=True)
         config = SceneConfig.from_dict(scene) if scene else None
         write_dataset(root, options["sequences"], options["frames"], size, options["seed"], config=config,
                       flow=False, depth=False)

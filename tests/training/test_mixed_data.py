@@ -86,3 +86,8 @@ def test_rbsf_scene_settings_reach_the_generator_and_its_marker(tmp_path):
     # without scene settings the marker is as before (data sets generated earlier stay valid)
     plain = Path(ensure_rbsf({k: v for k, v in options.items() if k != "scene"})[0]) / "eponet-rbsf.json"
     assert json.loads(plain.read_text()) == {"sequences": 1, "frames": 3, "size": "64x48", "seed": 2}
+    # a regeneration with fewer clips or frames leaves none of the earlier ones behind
+    ensure_rbsf({**options, "sequences": 2, "frames": 4})
+    ensure_rbsf(options)
+    assert sorted(p.name for p in (root / "JPEGImages" / "48p").iterdir()) == ["rbsf-0000"]
+    assert len(list((root / "JPEGImages" / "48p" / "rbsf-0000").iterdir())) == 3
