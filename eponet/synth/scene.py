@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import SpecError
+from ..core.registry import nearest
 from .render import render_frame, scaled_intrinsics
 from .textures import TextureBank, WaterTexture, sprite_alpha, sprite_texture, surface_texture
 
@@ -111,7 +112,12 @@ class SceneConfig:
         if not isinstance(data, dict):
             raise SpecError(f"expected a mapping of scene settings, got {type(data).__name__}", file=file)
         names = {f.name for f in dataclasses.fields(cls)}
-        problems = [f"{key}: unknown setting (known: {', '.join(sorted(names))})" for key in data if key not in names]
+        problems = []
+        for key in data:
+            if key not in names:
+                hint = nearest(key, sorted(names))
+                problems.append(f"{key}: unknown setting{f' (did you mean {hint!r}?)' if hint else ''} "
+                                f"(known: {', '.join(sorted(names))})")
         values = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items() if k in names}
         try:
             config = cls(**values)

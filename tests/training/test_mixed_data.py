@@ -36,7 +36,7 @@ def test_a_phase_mixes_a_list_of_sources_and_each_bad_one_is_named(tmp_path):
                            base_dir=tmp_path)
     problems = "\n".join(error.value.problems)
     assert "phases[0].data[1].rbsf.frames: expected an integer >= 3, got 2" in problems
-    assert "phases[0].data[1].rbsf.scene: num_boxs: unknown setting" in problems
+    assert "phases[0].data[1].rbsf.scene: num_boxs: unknown setting (did you mean 'num_boxes'?)" in problems
     assert "phases[0].data[1].rbsf.scene: fg_fraction: expected 0.01 <= min <= max <= 0.9, got [0.5, 2]" in problems
     assert "phases[0].data[2]: expected {davis: {root: ...}} or {rbsf: {dir: ...}}" in problems
     with pytest.raises(SpecError, match=r"phases\[0\].data: expected a source or a non-empty list of sources"):
