@@ -130,9 +130,13 @@ def mixed_source(source) -> dict:
         raise SystemExit(f"--recipe-data: {kind}.{key} is missing in {source!r}")
     options = {**options, key: str(Path(options[key]).resolve())}
     if kind == "rbsf":
+        from eponet.core.errors import EponetError
         from eponet.training.trainer import ensure_rbsf
 
-        ensure_rbsf(options)
+        try:
+            ensure_rbsf(options)
+        except (EponetError, ValueError) as exc:
+            raise SystemExit(f"--recipe-data: {exc}") from None
     return {kind: options}
 
 
