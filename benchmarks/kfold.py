@@ -119,25 +119,32 @@ def _finite(value):
     return float(value) if value is not None and np.isfinite(value) else None
 
 
-def mixed_source(source) -> dict:
-    """A ``--recipe-data`` source with its folder made absolute; an RBSF-style one is generated here, once,
-    before the folds train side by side."""
-    if not isinstance(source, dict) or len(source) != 1 or next(iter(source)) not in ("davis", "rbsf"):
-        raise SystemExit(f"--recipe-data: expected {{rbsf: {{dir: ...}}}} or {{davis: {{root: ...}}}}, got {source!r}")
-    kind, options = next(iter(source.items()))
-    key = "dir" if kind == "rbsf" else "root"
-    if not isinstance(options, dict) or key not in options:
-        raise SystemExit(f"--recipe-data: {kind}.{key} is missing in {source!r}")
-    options = {**options, key: str(Path(options[key]).resolve())}
-    if kind == "rbsf":
-        from eponet.core.errors import EponetError
-        from eponet.training.trainer import ensure_rbsf
+def yaml_value(text: str):
+    """An argparse type: the YAML value of ``text`` (a syntax error is a usage error, not a traceback)."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise argparse.ArgumentTypeError("not YAML: " + " ".join(str(exc).split())) from None
 
-        try:
-            ensure_rbsf(options)
-        except (EponetError, ValueError) as exc:
-            raise SystemExit(f"--recipe-data: {exc}") from None
-    return {kind: options}
+
+def mixed_sources(sources: list) -> list[dict]:
+    """``--recipe-data`` sources checked as the training spec checks them (in the recipe's DAVIS phase: paths
+    made absolute, defaults filled in); RBSF-style data is generated here, once, before the folds train side by
+    side."""
+    from eponet.core.errors import EponetError
+    from eponet.training.config import parse_train_config
+    from eponet.training.trainer import ensure_rbsf
+
+    doc = recipe_without(None)
+    doc["phases"][0]["data"] = [doc["phases"][0]["data"], *sources]
+    try:
+        mixed = parse_train_config(doc, base_dir=Path.cwd()).phases[0].data[1:]
+        for source in mixed:
+            if source.kind == "rbsf":
+                ensure_rbsf(source.options)
+    except EponetError as exc:
+        raise SystemExit(f"--recipe-data: {exc}") from None
+    return [{s.kind: {k: str(v) if isinstance(v, Path) else v for k, v in s.options.items()}} for s in mixed]
 
 
 def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, trajectories: dict | None = None,
@@ -298,7 +305,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", default="0",
                         help="epo: comma-separated training seeds; the held-out sequences run the mean of the seeds' "
                         "networks (0,1: the epo preset's pair; the first seed's are fold<i>/weights.pt)")
-    parser.add_argument("--recipe-data", type=yaml.safe_load, action="append", default=[],
+    parser.add_argument("--recipe-data", type=yaml_value, action="append", default=[],
                         help="a data source (YAML) mixed into the recipe's DAVIS phase, e.g. '{rbsf: {dir: runs/rbsf-mix, "
                              "sequences: 24, scene: {dynamic_texture_probability: 1.0}}}'; repeatable")
     parser.add_argument("--teacher", type=Path, default=None,
@@ -357,7 +364,7 @@ def main(argv=None) -> int:
         run = key_values(args.run)
         seeds = tuple(int(s) for s in args.seeds.split(","))
         crf = key_values(args.crf)
-        recipe_data = [mixed_source(source) for source in args.recipe_data]
+        recipe_data = mixed_sources(args.recipe_data) if args.recipe_data else []
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
@@ -370,7 +377,7 @@ def main(argv=None) -> int:
         if recipe_model:
             meta["recipe_model"] = recipe_model
         if recipe_data:
-            meta["recipe_data"] = json.loads(json.dumps(recipe_data, default=str))
+            meta["recipe_data"] = recipe_data
         if args.teacher:
             meta["teacher"] = {"folder": str(args.teacher), "seeds": args.teacher_seeds, "share": args.teacher_share}
         if run:

@@ -93,15 +93,14 @@ _DAVIS = (
     Param("sequences", "list", None, "sequences to use (default: all)", nullable=True),
     Param("exclude", "list", [], "sequences to leave out"),
 )
-RBSF_PARAMS = (
+_RBSF = (
     Param("dir", "path", None, "where the generated data set is written (reused when present)", required=True),
     Param("sequences", "int", 40, "number of clips", minimum=1),
     Param("frames", "int", 30, "frames per clip", minimum=3),
     Param("size", "str", "427x240", "frame size WxH"),
     Param("seed", "int", 0, "generator seed", minimum=0),
 )
-# ``rbsf.scene``: settings of eponet.synth.SceneConfig (e.g. dynamic_texture_probability: 1.0), checked by it
-RBSF_SCENE = "scene"
+# and ``scene``: settings of eponet.synth.SceneConfig (e.g. dynamic_texture_probability: 1.0), checked by it
 # -- task: fusion (EpO+, paper sections 4.3 and 5.2) --------------------------------------------------------
 _FUSION_MODEL = (
     Param("bottleneck", "int", 128, "channels of the 1x1 bottleneck on the appearance features (128 in the paper)",
@@ -287,11 +286,11 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
             problems.append(f"{path}.{kind}: expected a mapping of settings, got {options!r}")
             return None
         options = dict(options or {})
-        scene = options.pop(RBSF_SCENE, None) if kind == "rbsf" else None
-        values, found = validate_params(options or {}, _DAVIS if kind == "davis" else RBSF_PARAMS, f"{path}.{kind}")
+        scene = options.pop("scene", None) if kind == "rbsf" else None
+        values, found = validate_params(options, _DAVIS if kind == "davis" else _RBSF, f"{path}.{kind}")
         problems.extend(found)
         if scene is not None:
-            values[RBSF_SCENE] = scene
+            values["scene"] = scene
             from eponet.synth.scene import SceneConfig  # local: the generator is only needed for rbsf data
 
             try:

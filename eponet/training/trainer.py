@@ -15,7 +15,7 @@ from eponet.core.progress import track
 from eponet.training.augment import ED_CHANNEL, InputDropout, apply_crop_flip, draw_crop_flip, draw_flow_shift
 from eponet.training.base import (HISTORY_FIELDS, Trainer, data_line, history_table, plot_history, sequence_j,
                                   trained_line)
-from eponet.training.config import RBSF_PARAMS, DataSource, TrainConfig
+from eponet.training.config import DataSource, TrainConfig
 from eponet.training.data import SequenceData, load_motion_sequences
 from eponet.training.distributed import SINGLE, DistributedContext, barrier
 from eponet.training.losses import segmentation_loss
@@ -72,7 +72,7 @@ class MotionNetTrainer(Trainer):
     def load_data(self, source: DataSource) -> list[SequenceData]:
         options = source.options
         if source.kind == "rbsf":
-            root, resolution = self._ensure_rbsf(options)
+            root, resolution = ensure_rbsf(options, self.context)
             sequences, exclude = None, []
         else:
             root, resolution = options["root"], options["resolution"]
@@ -83,9 +83,6 @@ class MotionNetTrainer(Trainer):
         if not data:
             raise InputError(f"{root}: no training sequences left after exclusions")
         return data
-
-    def _ensure_rbsf(self, options: dict) -> tuple[Path, str]:
-        return ensure_rbsf(options, self.context)
 
     # -- optimisation ----------------------------------------------------------------------------
     def learning_rate(self, epoch: int, epoch_in_phase: int) -> float:
@@ -216,13 +213,12 @@ GENERATED = ("JPEGImages", "Annotations", "Annotations_unsupervised", "Cameras",
 
 def ensure_rbsf(options: dict, context: DistributedContext = SINGLE) -> tuple[Path, str]:
     """Generate the RBSF-style data set an ``rbsf`` data source describes (``dir``, ``sequences``, ``frames``,
-    ``size``, ``seed`` and optional ``scene`` settings; missing ones take the training spec's defaults) unless
-    ``dir`` already holds it, as recorded in its ``eponet-rbsf.json``; returns its root and resolution (``240p``
+    ``size``, ``seed`` and optional ``scene`` settings, as the training spec validated them) unless ``dir``
+    already holds it, as recorded in its ``eponet-rbsf.json``; returns its root and resolution (``240p``
     for 427x240). Under DDP rank 0 writes it and the others wait for it."""
     from eponet.synth import write_dataset
     from eponet.synth.scene import SceneConfig
 
-    options = {p.name: p.default for p in RBSF_PARAMS} | options
     width, _, height = options["size"].partition("x")
     size = (int(width), int(height))
     root = Path(options["dir"])
