@@ -42,6 +42,9 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo --out runs/kfold-epo-synmix \
         --recipe-data '{rbsf: {dir: runs/rbsf-distractors, sequences: 24, scene: {dynamic_texture_probability: 1.0}}}'
         # synthetic clips (here with moving water in every clip) mixed into each fold's DAVIS phase
+    python benchmarks/kfold.py --what epo --out runs/kfold-epo-paste \
+        --recipe-data '{paste: {dir: runs/paste, root: ../shared/data/davis2016-train/DAVIS, clips: 24}}'
+        # the paper's RBSF on real video: objects of each fold's training sequences pasted over others of them
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus-pair-grid --seeds 0,1 \
         --crf backend=grid grid_cell=1.0
         # settings merged onto the refiner (the fold folders' fusion/ linked to an earlier run's: nothing retrained)
@@ -130,7 +133,7 @@ def yaml_value(text: str):
 def mixed_sources(sources: list) -> list[dict]:
     """``--recipe-data`` sources checked as the training spec checks them (in the recipe's DAVIS phase: paths
     made absolute, defaults filled in); RBSF-style data is generated here, once, before the folds train side by
-    side."""
+    side (pasted clips, which differ per fold, by :func:`run_epo`)."""
     from eponet.core.errors import EponetError
     from eponet.training.config import parse_train_config
     from eponet.training.trainer import ensure_rbsf
@@ -145,6 +148,19 @@ def mixed_sources(sources: list) -> list[dict]:
     except EponetError as exc:
         raise SystemExit(f"--recipe-data: {exc}") from None
     return [{s.kind: {k: str(v) if isinstance(v, Path) else v for k, v in s.options.items()}} for s in mixed]
+
+
+def fold_sources(sources: list[dict], i: int, held_out: list[str]) -> list[dict]:
+    """``--recipe-data`` sources for fold ``i``: a ``paste`` source draws from the fold's training sequences only
+    (its ``exclude`` gets the held-out ones) and writes into ``<dir>/fold<i>``."""
+    out = []
+    for source in sources:
+        if "paste" in source:
+            o = source["paste"]
+            source = {"paste": {**o, "dir": str(Path(o["dir"]) / f"fold{i}"),
+                                "exclude": sorted(set(o["exclude"]) | set(held_out))}}
+        out.append(source)
+    return out
 
 
 def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, trajectories: dict | None = None,
@@ -218,7 +234,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         doc["model"].update(recipe_model or {})
         doc["seed"] = seed
         if recipe_data:
-            doc["phases"][0]["data"] = [doc["phases"][0]["data"], *recipe_data]
+            doc["phases"][0]["data"] = [doc["phases"][0]["data"], *fold_sources(recipe_data, i, split[i])]
         if teacher is not None:
             doc["teacher"] = {"share": teacher_share, "weights": [
                 str(teacher.resolve() / f"fold{i}" / ("" if s == teacher_seeds[0] else f"seed{s}") / "weights.pt")
@@ -239,6 +255,12 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         return train_variant(out / f"fold{i}" / "fusion", lambda: fusion_recipe_without(split[i], nets(i)),
                              threads, retrain=False)
 
+    from eponet.training.trainer import ensure_pasted
+
+    for i in which:  # pasted clips: one set per fold, written before the fold's trainings run side by side
+        for source in fold_sources(recipe_data or [], i, split[i]):
+            if "paste" in source:
+                ensure_pasted(source["paste"])
     seconds = dict.fromkeys(which, 0.0)
     trainings = [(i, seed) for seed in seeds for i in which]
     with ThreadPoolExecutor(jobs) as pool:  # every network first, then the fusions that read them
@@ -307,7 +329,9 @@ def main(argv=None) -> int:
                         "networks (0,1: the epo preset's pair; the first seed's are fold<i>/weights.pt)")
     parser.add_argument("--recipe-data", type=yaml_value, action="append", default=[],
                         help="a data source (YAML) mixed into the recipe's DAVIS phase, e.g. '{rbsf: {dir: runs/rbsf-mix, "
-                             "sequences: 24, scene: {dynamic_texture_probability: 1.0}}}'; repeatable")
+                             "sequences: 24, scene: {dynamic_texture_probability: 1.0}}}' or '{paste: {dir: runs/paste, root: "
+                             "../shared/data/davis2016-train/DAVIS}}' (objects of each fold's training sequences "
+                             "pasted over others, into <dir>/fold<i>); repeatable")
     parser.add_argument("--teacher", type=Path, default=None,
                         help="distil: each fold's recipe learns from this folder's fold networks (like --weights)")
     parser.add_argument("--teacher-seeds", default="0,1", help="the teacher folder's seeds (default: 0,1, a pair)")

@@ -293,6 +293,11 @@ def data_line(source: DataSource | tuple[DataSource, ...]) -> str:
                 f"seed {o.get('seed')}{settings})")
     chosen = ", ".join(o["sequences"]) if o.get("sequences") else "all sequences"
     excluded = f" except {', '.join(o['exclude'])}" if o.get("exclude") else ""
+    if source.kind == "paste":
+        return (f"{o.get('clips')} clips x {o.get('frames')} frames of objects pasted over other sequences (seed "
+                f"{o.get('seed')}, object area {o.get('object_area')} of the frame, speed {o.get('speed')} px per "
+                f"frame) from DAVIS-layout root `{Path(str(o.get('root'))).name}` {o.get('resolution', '')}: "
+                f"{chosen}{excluded}")
     return f"DAVIS-layout root `{Path(str(o.get('root'))).name}` {o.get('resolution', '')}: {chosen}{excluded}"
 
 

@@ -101,6 +101,17 @@ _RBSF = (
     Param("seed", "int", 0, "generator seed", minimum=0),
 )
 # and ``scene``: settings of eponet.synth.SceneConfig (e.g. dynamic_texture_probability: 1.0), checked by it
+_PASTE = (
+    Param("dir", "path", None, "where the pasted clips are written (reused when present)", required=True),
+    *_DAVIS,
+    Param("clips", "int", 24, "number of clips", minimum=1),
+    Param("frames", "int", 30, "frames per clip", minimum=3),
+    Param("seed", "int", 0, "which backgrounds, objects, windows and paths", minimum=0),
+    Param("object_area", "list", [0.02, 0.25], "range of the pasted object's area, as a fraction of the frame"),
+    Param("speed", "list", [0.5, 4.0], "range of the pasted object's speed, pixels per frame"),
+)
+#: Data source kinds: their settings, and the key that names their folder.
+_SOURCES = {"davis": (_DAVIS, "root"), "rbsf": (_RBSF, "dir"), "paste": (_PASTE, "dir")}
 # -- task: fusion (EpO+, paper sections 4.3 and 5.2) --------------------------------------------------------
 _FUSION_MODEL = (
     Param("bottleneck", "int", 128, "channels of the 1x1 bottleneck on the appearance features (128 in the paper)",
@@ -150,9 +161,18 @@ _PHASE = (
 )
 
 
+def _range_problem(value: list, upper: float | None) -> str | None:
+    """Why ``value`` is not a range ``[low, high]`` of numbers with ``0 < low <= high`` (``<= upper``), or None."""
+    if (len(value) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            and 0 < value[0] <= value[1] and (upper is None or value[1] <= upper)):
+        return None
+    bound = f" <= {upper:g}" if upper is not None else ""
+    return f"expected [low, high] with 0 < low <= high{bound}, got {value!r}"
+
+
 @dataclass
 class DataSource:
-    kind: str  # "davis" or "rbsf"
+    kind: str  # "davis", "rbsf" or "paste"
     options: dict
 
 
@@ -275,8 +295,9 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
         problems.append(f"threads: expected a positive integer or null (all cores), got {threads!r}")
 
     def data_source(raw, path: str) -> DataSource | None:
-        if not isinstance(raw, dict) or len(raw) != 1 or next(iter(raw)) not in ("davis", "rbsf"):
-            problems.append(f"{path}: expected {{davis: {{root: ...}}}} or {{rbsf: {{dir: ...}}}}, got {raw!r}")
+        if not isinstance(raw, dict) or len(raw) != 1 or next(iter(raw)) not in _SOURCES:
+            problems.append(f"{path}: expected {{davis: {{root: ...}}}}, {{rbsf: {{dir: ...}}}} or {{paste: {{dir: ..., "
+                            f"root: ...}}}}, got {raw!r}")
             return None
         kind, options = next(iter(raw.items()))
         if task == "fusion" and kind != "davis":
@@ -287,8 +308,13 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
             return None
         options = dict(options or {})
         scene = options.pop("scene", None) if kind == "rbsf" else None
-        values, found = validate_params(options, _DAVIS if kind == "davis" else _RBSF, f"{path}.{kind}")
+        schema, key = _SOURCES[kind]
+        values, found = validate_params(options, schema, f"{path}.{kind}")
         problems.extend(found)
+        for name in ("object_area", "speed") if kind == "paste" else ():
+            problem = isinstance(values.get(name), list) and _range_problem(values[name], 1.0 if name == "object_area" else None)
+            if problem:
+                problems.append(f"{path}.paste.{name}: {problem}")
         if scene is not None:
             values["scene"] = scene
             from eponet.synth.scene import SceneConfig  # local: the generator is only needed for rbsf data
@@ -297,10 +323,12 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
                 SceneConfig.from_dict(scene)
             except SpecError as exc:
                 problems.extend(f"{path}.rbsf.scene: {p}" for p in exc.problems)
-        key = "root" if kind == "davis" else "dir"
         values[key] = resolve(f"{path}.{kind}.{key}", values.get(key))
-        if kind == "davis" and values[key] is not None and not (values[key] / "JPEGImages").is_dir():
-            problems.append(f"{path}.davis.root: {values[key]} is not a DAVIS-layout root (no JPEGImages/)")
+        if kind == "paste":
+            values["root"] = resolve(f"{path}.paste.root", values.get("root"))
+        root = values.get("root") if kind != "rbsf" else None
+        if root is not None and not (root / "JPEGImages").is_dir():
+            problems.append(f"{path}.{kind}.root: {root} is not a DAVIS-layout root (no JPEGImages/)")
         return DataSource(kind, values)
 
     phases: list[Phase] = []

@@ -16,7 +16,7 @@ from eponet.training.augment import ED_CHANNEL, InputDropout, apply_crop_flip, d
 from eponet.training.base import (HISTORY_FIELDS, Trainer, data_line, history_table, plot_history, sequence_j,
                                   trained_line)
 from eponet.training.config import DataSource, TrainConfig
-from eponet.training.data import SequenceData, load_motion_sequences
+from eponet.training.data import SequenceData, davis_masks, load_motion_sequences
 from eponet.training.distributed import SINGLE, DistributedContext, barrier
 from eponet.training.losses import segmentation_loss
 
@@ -71,8 +71,8 @@ class MotionNetTrainer(Trainer):
     # -- data ------------------------------------------------------------------------------------
     def load_data(self, source: DataSource) -> list[SequenceData]:
         options = source.options
-        if source.kind == "rbsf":
-            root, resolution = ensure_rbsf(options, self.context)
+        if source.kind in ("rbsf", "paste"):
+            root, resolution = (ensure_rbsf if source.kind == "rbsf" else ensure_pasted)(options, self.context)
             sequences, exclude = None, []
         else:
             root, resolution = options["root"], options["resolution"]
@@ -207,41 +207,77 @@ def model_card(config: TrainConfig, summary: dict, history: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-#: What :func:`eponet.synth.write_dataset` writes under its folder (removed before a regeneration).
+#: What :func:`eponet.synth.write_dataset` and :func:`eponet.synth.paste.write_pasted` write under their folder
+#: (removed before a regeneration).
 GENERATED = ("JPEGImages", "Annotations", "Annotations_unsupervised", "Cameras", "ImageSets")
+
+
+def _ensure_generated(root: Path, marker_name: str, recipe: dict, generate, context: DistributedContext) -> None:
+    """Run ``generate()`` to write a data set under ``root`` unless its marker file ``marker_name`` records
+    ``recipe`` already; what an earlier recipe wrote there is removed first. Under DDP rank 0 writes it and the
+    others wait for it."""
+    marker = root / marker_name
+
+    def ready() -> bool:
+        return marker.is_file() and json.loads(marker.read_text()) == recipe
+
+    if context.is_main and not ready():
+        log.info("generating training data in %s", root)
+        if marker.is_file():  # data of other settings that this function wrote: no stale clip or frame may stay
+            for name in GENERATED:
+                shutil.rmtree(root / name, ignore_errors=True)
+        generate()
+        atomic_write_bytes(marker, json.dumps(recipe).encode())
+    barrier(context)
+    if not ready():
+        raise InputError(f"{root}: rank 0 generated the training data there, but {context.label} does not "
+                         "see it; put the data source's dir on storage every machine shares")
 
 
 def ensure_rbsf(options: dict, context: DistributedContext = SINGLE) -> tuple[Path, str]:
     """Generate the RBSF-style data set an ``rbsf`` data source describes (``dir``, ``sequences``, ``frames``,
     ``size``, ``seed`` and optional ``scene`` settings, as the training spec validated them) unless ``dir``
     already holds it, as recorded in its ``eponet-rbsf.json``; returns its root and resolution (``240p``
-    for 427x240). Under DDP rank 0 writes it and the others wait for it."""
+    for 427x240)."""
     from eponet.synth import write_dataset
     from eponet.synth.scene import SceneConfig
 
     width, _, height = options["size"].partition("x")
     size = (int(width), int(height))
     root = Path(options["dir"])
-    marker = root / "eponet-rbsf.json"
     recipe = {k: options[k] for k in ("sequences", "frames", "size", "seed")}
     scene = options.get("scene")
     if scene:  # the marker of data generated without scene settings stays valid
         recipe["scene"] = scene
-
-    def ready() -> bool:
-        return marker.is_file() and json.loads(marker.read_text()) == recipe
-
-    if context.is_main and not ready():
-        log.info("generating RBSF-style data in %s", root)
-        if marker.is_file():  # data of other settings that this function wrote: no stale clip or frame may stay
-            for name in GENERATED:
-                shutil.rmtree(root / name, ignore_errors=True)
-        config = SceneConfig.from_dict(scene) if scene else None
-        write_dataset(root, options["sequences"], options["frames"], size, options["seed"], config=config,
-                      flow=False, depth=False)
-        atomic_write_bytes(marker, json.dumps(recipe).encode())
-    barrier(context)
-    if not ready():
-        raise InputError(f"{root}: rank 0 generated the RBSF-style data there, but {context.label} does not "
-                         "see it; put rbsf.dir on storage every machine shares")
+    config = SceneConfig.from_dict(scene) if scene else None
+    _ensure_generated(root, "eponet-rbsf.json", recipe, lambda: write_dataset(
+        root, options["sequences"], options["frames"], size, options["seed"], config=config, flow=False, depth=False),
+        context)
     return root, f"{size[1]}p"
+
+
+def ensure_pasted(options: dict, context: DistributedContext = SINGLE) -> tuple[Path, str]:
+    """Write the clips a ``paste`` data source describes (:mod:`eponet.synth.paste`: objects of the DAVIS-layout
+    sequences under ``root`` pasted over others of them, as the training spec validated the settings) unless
+    ``dir`` already holds them, as recorded in its ``eponet-paste.json``; returns its root and resolution."""
+    from eponet.core.inputs import discover_sequences, load_video
+    from eponet.synth.paste import PasteSettings, write_pasted
+
+    davis, resolution = Path(options["root"]), options["resolution"]
+    sources = {s.name: s for s in discover_sequences(davis, sequences=options["sequences"], resolution=resolution)
+               if s.name not in options["exclude"]}
+    names = sorted(sources)
+    if len(names) < 2:
+        raise InputError(f"{davis}: pasting needs at least two sequences after exclusions, got {names}")
+    settings = PasteSettings(object_area=tuple(options["object_area"]), speed=tuple(options["speed"]))
+    root = Path(options["dir"])
+    recipe = {"root": str(davis), "resolution": resolution, "sequences": names,
+              **{k: options[k] for k in ("clips", "frames", "seed", "object_area", "speed")}}
+
+    def load(name):
+        video = load_video(sources[name], scale=1.0, keep_full=False)
+        return video.frames, davis_masks(davis, resolution, name, video.stems, video.shape)
+
+    _ensure_generated(root, "eponet-paste.json", recipe, lambda: write_pasted(
+        root, names, load, options["clips"], options["frames"], options["seed"], settings), context)
+    return root, resolution
