@@ -22,12 +22,16 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from ..core.errors import InputError
 from ..core.io import write_mask_png
 from .writer import _check_writable, _write_jpeg, frame_name, resolution_name, sequence_seed, write_index
 
 __all__ = ["PasteSettings", "Sprite", "object_sprites", "paste_path", "paste_clip", "write_pasted"]
 
 log = logging.getLogger(__name__)
+
+#: Windows of an object's sequence tried before one with the object annotated is given up.
+_WINDOW_TRIES = 20
 
 
 @dataclass(frozen=True)
@@ -171,10 +175,15 @@ def write_pasted(out_dir: str | Path, names: list[str], load: Callable[[str], tu
         bg_frames, bg_masks = sequence(names[background])
         fg_frames, fg_masks = sequence(names[thing])
         if bg_frames.shape[1:3] != fg_frames.shape[1:3]:
-            raise ValueError(f"{names[background]} and {names[thing]} differ in size: {bg_frames.shape[1:3]} and "
-                             f"{fg_frames.shape[1:3]}")
+            raise InputError(f"{names[background]} and {names[thing]}: pasting needs sequences of one size, got "
+                             f"{bg_frames.shape[2]}x{bg_frames.shape[1]} and {fg_frames.shape[2]}x{fg_frames.shape[1]}")
         keep = _window(rng, len(bg_frames), frames)
-        take = _window(rng, len(fg_frames), frames)
+        for _ in range(_WINDOW_TRIES):  # a window where the object is annotated in at least one frame
+            take = _window(rng, len(fg_frames), frames)
+            if fg_masks[take].any():
+                break
+        else:
+            raise InputError(f"{names[thing]}: no annotated object in {_WINDOW_TRIES} windows of {frames} frames")
         sprites = object_sprites(fg_frames[take], fg_masks[take])
         composite, truth = paste_clip(rng, bg_frames[keep], bg_masks[keep], sprites, settings)
         name = f"paste-{index:04d}"

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from eponet.core.errors import InputError
 from eponet.synth.paste import PasteSettings, _reflect, object_sprites, paste_clip, paste_path, write_pasted
 
 
@@ -82,3 +83,9 @@ def test_written_clips_are_deterministic_and_draw_from_the_given_sequences(tmp_p
                                                                                  "paste-0002"]
     with pytest.raises(ValueError, match="at least two sequences"):
         write_pasted(tmp_path / "three", ["a"], load, clips=1, frames=8, seed=0)
+    sequences["d"] = (sequences["a"][0], np.zeros_like(sequences["a"][1]))  # never annotated
+    with pytest.raises(InputError, match="d: no annotated object in 20 windows of 8 frames"):
+        write_pasted(tmp_path / "four", ["a", "d"], load, clips=4, frames=8, seed=0)
+    sequences["e"] = tuple(x[:, :40] for x in sequences["a"])
+    with pytest.raises(InputError, match="pasting needs sequences of one size, got 64x48 and 64x40|64x40 and 64x48"):
+        write_pasted(tmp_path / "five", ["a", "e"], load, clips=1, frames=8, seed=0)
