@@ -1,6 +1,7 @@
 """Speed and memory of the geometry stages: dense trajectories + trifocal rigidity (with painting).
 
-Prints seconds per frame and the peak resident memory of a fresh process for 25, 50 and 100 frames at
+Prints seconds per frame, the cost in R (DIS ``medium`` forward + backward per frame on the same frames at the
+same size, one thread, measured in the same run) and the peak resident memory of a fresh process for 25, 50 and 100 frames at
 854x480 and 427x240. Flow is precomputed (OpenCV DIS, preset medium) and not timed. The video is a real
 DAVIS sequence played forwards and backwards until it has 100 frames ("ping-pong": the flow of a reversed
 pair is the original pair's backward/forward flow), or, without the shared data, a synthetic rendered scene.
@@ -51,15 +52,24 @@ def _gray_frames(size: tuple[int, int]) -> tuple[list[np.ndarray], str]:
     return [f[..., 0] for f in video.frames], name
 
 
-def prepare_flow(size: tuple[int, int], frames: int, out: Path) -> str:
-    """DIS flow of a ``frames``-long ping-pong video at ``size``, saved as ``out`` (.npz)."""
+def prepare_flow(size: tuple[int, int], frames: int, out: Path) -> tuple[str, float]:
+    """DIS flow of a ``frames``-long ping-pong video at ``size``, saved as ``out`` (.npz); returns the source's
+    name and R, the milliseconds per frame of that flow (DIS ``medium`` forward + backward on one thread)."""
     import cv2
 
     gray, name = _gray_frames(size)
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     n = len(gray)
-    fw = [dis.calc(gray[t], gray[t + 1], None) for t in range(n - 1)]
-    bw = [dis.calc(gray[t + 1], gray[t], None) for t in range(n - 1)]
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        dis.calc(gray[0], gray[1], None)  # warm-up
+        start = time.perf_counter()
+        fw = [dis.calc(gray[t], gray[t + 1], None) for t in range(n - 1)]
+        bw = [dis.calc(gray[t + 1], gray[t], None) for t in range(n - 1)]
+        reference = (time.perf_counter() - start) * 1000 / (n - 1)
+    finally:
+        cv2.setNumThreads(previous)
     forward, backward = [], []
     t, step = 0, 1
     while len(forward) < frames - 1:  # ping-pong through the pairs
@@ -72,7 +82,7 @@ def prepare_flow(size: tuple[int, int], frames: int, out: Path) -> str:
         else:
             t += step
     np.savez(out, forward=np.stack(forward).astype(np.float32), backward=np.stack(backward).astype(np.float32))
-    return name
+    return name, reference
 
 
 def _peak_rss_mb() -> float:
@@ -131,15 +141,18 @@ def main(argv=None) -> int:
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     print(f"geometry benchmark: dense trajectories + rigidity '{args.variant}' (defaults) + painting; "
           f"flow (DIS medium) precomputed; {os.cpu_count()} CPU cores")
-    print(f"{'size':>8} {'frames':>6} {'traj':>9} {'rigidity':>9} {'total':>9} {'T':>9} {'RSS flow':>9} "
-          f"{'peak RSS':>9}")
-    print(f"{'':>8} {'':>6} {'s/frame':>9} {'s/frame':>9} {'s/frame':>9} {'':>9} {'MB':>9} {'MB':>9}")
+    print("R: DIS medium forward + backward per frame on the same frames at that size, one thread, measured in "
+          "the same run")
+    print(f"{'size':>8} {'frames':>6} {'traj':>9} {'rigidity':>9} {'total':>9} {'R':>7} {'total':>7} {'T':>9} "
+          f"{'RSS flow':>9} {'peak RSS':>9}")
+    print(f"{'':>8} {'':>6} {'s/frame':>9} {'s/frame':>9} {'s/frame':>9} {'ms':>7} {'in R':>7} {'':>9} {'MB':>9} "
+          f"{'MB':>9}")
     with tempfile.TemporaryDirectory() as tmp:
         for size_text in args.sizes:
             w, h = (int(v) for v in size_text.split("x"))
             for frames in args.frames:
                 path = Path(tmp) / f"flow_{w}x{h}_{frames}.npz"
-                source = prepare_flow((w, h), frames, path)
+                source, reference = prepare_flow((w, h), frames, path)
                 command = [sys.executable, __file__, "--child", str(path), args.variant]
                 out = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
                 if out.returncode != 0:
@@ -147,7 +160,8 @@ def main(argv=None) -> int:
                     return 1
                 r = json.loads(out.stdout.strip().splitlines()[-1])
                 print(f"{size_text:>8} {r['frames']:>6} {r['traj_s_per_frame']:>9.3f} "
-                      f"{r['rigidity_s_per_frame']:>9.3f} {r['total_s_per_frame']:>9.3f} {r['trajectories']:>9} "
+                      f"{r['rigidity_s_per_frame']:>9.3f} {r['total_s_per_frame']:>9.3f} {reference:>7.1f} "
+                      f"{r['total_s_per_frame'] * 1000 / reference:>7.2f} {r['trajectories']:>9} "
                       f"{r['rss_after_flow_mb']:>9.0f} "
                       f"{r['peak_rss_mb']:>9.0f}   ({source})", flush=True)
                 path.unlink()
