@@ -45,6 +45,9 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo --out runs/kfold-epo-paste \
         --recipe-data '{paste: {dir: runs/paste, root: ../shared/data/davis2016-train/DAVIS, clips: 24}}'
         # the paper's RBSF on real video: objects of each fold's training sequences pasted over others of them
+    python benchmarks/kfold.py --what epo --out runs/kfold-epo-pastepre \
+        --recipe-phase '{name: paste, epochs: 2, data: {paste: {dir: runs/paste-pre, root: ../shared/data/davis2016-train/DAVIS}}}'
+        # the same clips as a pre-training phase before the DAVIS phase, as the paper trains
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus-pair-grid --seeds 0,1 \
         --crf backend=grid grid_cell=1.0
         # settings merged onto the refiner (the fold folders' fusion/ linked to an earlier run's: nothing retrained)
@@ -147,7 +150,27 @@ def mixed_sources(sources: list) -> list[dict]:
                 ensure_rbsf(source.options)
     except EponetError as exc:
         raise SystemExit(f"--recipe-data: {exc}") from None
-    return [{s.kind: {k: str(v) if isinstance(v, Path) else v for k, v in s.options.items()}} for s in mixed]
+    return [_source_dict(s) for s in mixed]
+
+
+def _source_dict(source) -> dict:
+    return {source.kind: {k: str(v) if isinstance(v, Path) else v for k, v in source.options.items()}}
+
+
+def pre_phases(phases: list) -> list[dict]:
+    """``--recipe-phase`` phases checked as the training spec checks them (placed before the recipe's DAVIS phase:
+    paths made absolute, defaults filled in), each data source as ``fold_sources`` takes them."""
+    from eponet.core.errors import EponetError
+    from eponet.training.config import parse_train_config
+
+    doc = recipe_without(None)
+    doc["phases"] = [*phases, *doc["phases"]]
+    try:
+        parsed = parse_train_config(doc, base_dir=Path.cwd()).phases[:len(phases)]
+    except EponetError as exc:
+        raise SystemExit(f"--recipe-phase: {exc}") from None
+    return [{"name": p.name, "epochs": p.epochs, "samples_per_epoch": p.samples_per_epoch,
+             "data": [_source_dict(s) for s in (p.data if isinstance(p.data, tuple) else (p.data,))]} for p in parsed]
 
 
 def fold_sources(sources: list[dict], i: int, held_out: list[str]) -> list[dict]:
@@ -211,7 +234,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             seeds: tuple[int, ...] = (0,), crf_settings: dict | None = None, run_seed: int = 0,
             flow: dict | None = None, motion_net: dict | None = None, recipe_model: dict | None = None,
             teacher: Path | None = None, teacher_seeds: tuple[int, ...] = (0, 1), teacher_share: float = 0.5,
-            recipe_data: list[dict] | None = None) -> dict[str, dict]:
+            recipe_data: list[dict] | None = None, recipe_phases: list[dict] | None = None) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
@@ -223,7 +246,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     runs' spec seed (RANSAC, self-training), not the networks'; ``flow``, ``motion_net``: settings merged onto the
     preset's flow stage and onto the fold's motion network when scoring. ``teacher``: a folder of fold networks
     like ``weights`` (seeds ``teacher_seeds``) that each fold's recipe distils (``teacher: {weights: ..., share:
-    teacher_share}``), i.e. networks trained without the same held-out sequences. ``recipe_data``: data sources
+    teacher_share}``), i.e. networks trained without the same held-out sequences. ``recipe_phases``: phases
+    (``pre_phases``) trained before the recipe's DAVIS phase. ``recipe_data``: data sources
     (``{rbsf: {dir: ..., scene: {...}}}``, absolute paths) mixed into the recipe's DAVIS phase."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
@@ -235,6 +259,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         doc["seed"] = seed
         if recipe_data:
             doc["phases"][0]["data"] = [doc["phases"][0]["data"], *fold_sources(recipe_data, i, split[i])]
+        doc["phases"] = [{**p, "data": fold_sources(p["data"], i, split[i])} for p in recipe_phases or []] + doc["phases"]
         if teacher is not None:
             doc["teacher"] = {"share": teacher_share, "weights": [
                 str(teacher.resolve() / f"fold{i}" / ("" if s == teacher_seeds[0] else f"seed{s}") / "weights.pt")
@@ -258,7 +283,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     from eponet.training.trainer import ensure_pasted
 
     for i in which:  # pasted clips: one set per fold, written before the fold's trainings run side by side
-        for source in fold_sources(recipe_data or [], i, split[i]):
+        sources = [*(recipe_data or []), *(d for p in recipe_phases or [] for d in p["data"])]
+        for source in fold_sources(sources, i, split[i]):
             if "paste" in source:
                 ensure_pasted(source["paste"])
     seconds = dict.fromkeys(which, 0.0)
@@ -332,6 +358,10 @@ def main(argv=None) -> int:
                              "sequences: 24, scene: {dynamic_texture_probability: 1.0}}}' or '{paste: {dir: runs/paste, root: "
                              "../shared/data/davis2016-train/DAVIS}}' (objects of each fold's training sequences "
                              "pasted over others, into <dir>/fold<i>); repeatable")
+    parser.add_argument("--recipe-phase", type=yaml_value, action="append", default=[],
+                        help="a phase (YAML) trained before the recipe's DAVIS phase, e.g. '{name: paste, epochs: 2, data: "
+                             "{paste: {dir: runs/paste, root: ../shared/data/davis2016-train/DAVIS}}}' (the paper's "
+                             "pre-training); repeatable")
     parser.add_argument("--teacher", type=Path, default=None,
                         help="distil: each fold's recipe learns from this folder's fold networks (like --weights)")
     parser.add_argument("--teacher-seeds", default="0,1", help="the teacher folder's seeds (default: 0,1, a pair)")
@@ -389,11 +419,12 @@ def main(argv=None) -> int:
         seeds = tuple(int(s) for s in args.seeds.split(","))
         crf = key_values(args.crf)
         recipe_data = mixed_sources(args.recipe_data) if args.recipe_data else []
+        recipe_phases = pre_phases(args.recipe_phase) if args.recipe_phase else []
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
                                args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share,
-                               recipe_data)
+                               recipe_data, recipe_phases)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -402,6 +433,8 @@ def main(argv=None) -> int:
             meta["recipe_model"] = recipe_model
         if recipe_data:
             meta["recipe_data"] = recipe_data
+        if recipe_phases:
+            meta["recipe_phases"] = recipe_phases
         if args.teacher:
             meta["teacher"] = {"folder": str(args.teacher), "seeds": args.teacher_seeds, "share": args.teacher_share}
         if run:

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.io import write_mask_png
-from .writer import _check_writable, _write_jpeg, frame_name, resolution_name, sequence_seed, write_index
+from .writer import check_writable, write_jpeg, frame_name, resolution_name, sequence_seed, write_index
 
 __all__ = ["PasteSettings", "Sprite", "object_sprites", "paste_path", "paste_clip", "write_pasted"]
 
@@ -158,7 +158,7 @@ def write_pasted(out_dir: str | Path, names: list[str], load: Callable[[str], tu
     if len(names) < 2:
         raise ValueError(f"pasting needs at least two sequences (a background and an object), got {names}")
     out = Path(out_dir)
-    _check_writable(out)
+    check_writable(out)
     cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def sequence(name):
@@ -190,7 +190,7 @@ def write_pasted(out_dir: str | Path, names: list[str], load: Callable[[str], tu
         res = resolution_name(composite.shape[1])
         for t in range(len(composite)):
             stem = frame_name(t)
-            _write_jpeg(out / "JPEGImages" / res / name / f"{stem}.jpg", composite[t], jpeg_quality)
+            write_jpeg(out / "JPEGImages" / res / name / f"{stem}.jpg", composite[t], jpeg_quality)
             write_mask_png(out / "Annotations" / res / name / f"{stem}.png", truth[t])
         entries.append({"name": name, "attributes": [], "num_frames": int(frames), "set": "train", "eval_t": True,
                         "year": 2016, "background": names[background], "object": names[thing],

@@ -34,7 +34,8 @@ from .clip import Clip, check_size, generate_clip
 from .scene import SceneConfig
 from .textures import folder_photos
 
-__all__ = ["ATTRIBUTES", "frame_name", "resolution_name", "sequence_seed", "write_clip", "write_index", "write_dataset"]
+__all__ = ["ATTRIBUTES", "check_writable", "frame_name", "resolution_name", "sequence_seed", "write_clip", "write_index",
+           "write_dataset", "write_jpeg"]
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +65,8 @@ def sequence_seed(seed: int, index: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(index)]).generate_state(1, np.uint64)[0] >> np.uint64(1))
 
 
-def _write_jpeg(path: Path, rgb: np.ndarray, quality: int) -> None:
+def write_jpeg(path: Path, rgb: np.ndarray, quality: int) -> None:
+    """Write RGB uint8 ``(H, W, 3)`` as a JPEG of ``quality`` (1-100), atomically."""
     import cv2
 
     ok, data = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
@@ -101,7 +103,7 @@ def write_clip(
     F = clip.num_frames
     for t in range(F):
         stem = frame_name(t)
-        _write_jpeg(out / "JPEGImages" / res / name / f"{stem}.jpg", clip.frames[t], jpeg_quality)
+        write_jpeg(out / "JPEGImages" / res / name / f"{stem}.jpg", clip.frames[t], jpeg_quality)
         write_mask_png(out / "Annotations" / res / name / f"{stem}.png", clip.masks[t])
         if objects:
             write_mask_png(out / "Annotations_unsupervised" / res / name / f"{stem}.png", clip.object_ids[t])
@@ -153,7 +155,8 @@ def write_index(out_dir: str | Path, entries: Iterable[dict], *, extra: dict | N
     atomic_write_bytes(out / "db_info.yml", yaml.safe_dump(info, sort_keys=False).encode())
 
 
-def _check_writable(out: Path) -> None:
+def check_writable(out: Path) -> None:
+    """Create the folder ``out`` if needed and check that files can be written in it (:class:`OutputError` if not)."""
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -202,7 +205,7 @@ def write_dataset(
     if config.backgrounds is not None:
         folder_photos(config.backgrounds)  # fail early on an empty or missing folder
     out = Path(out_dir)
-    _check_writable(out)
+    check_writable(out)
 
     entries = []
     # files of clip i are encoded and written on a second thread while clip i+1 is rendered (encoders and
