@@ -396,6 +396,9 @@ def main(argv=None) -> int:
         if unknown:
             raise SystemExit(f"--sequences: not DAVIS-2016 train sequences: {', '.join(sorted(unknown))}")
         which = [i for i in which if only & set(split[i])]
+    # training data checked (and RBSF-style data generated) before anything is written under --out
+    recipe_data = mixed_sources(args.recipe_data) if args.recipe_data and args.what != "ed" else []
+    recipe_phases = pre_phases(args.recipe_phase) if args.recipe_phase and args.what != "ed" else []
     out = args.out or ROOT / "runs" / f"kfold-{args.what}"
     out.mkdir(parents=True, exist_ok=True)
     for i in which:
@@ -418,8 +421,6 @@ def main(argv=None) -> int:
         run = key_values(args.run)
         seeds = tuple(int(s) for s in args.seeds.split(","))
         crf = key_values(args.crf)
-        recipe_data = mixed_sources(args.recipe_data) if args.recipe_data else []
-        recipe_phases = pre_phases(args.recipe_phase) if args.recipe_phase else []
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
