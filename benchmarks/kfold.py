@@ -133,44 +133,36 @@ def yaml_value(text: str):
         raise argparse.ArgumentTypeError("not YAML: " + " ".join(str(exc).split())) from None
 
 
-def mixed_sources(sources: list) -> list[dict]:
-    """``--recipe-data`` sources checked as the training spec checks them (in the recipe's DAVIS phase: paths
-    made absolute, defaults filled in); RBSF-style data is generated here, once, before the folds train side by
-    side (pasted clips, which differ per fold, by :func:`run_epo`)."""
+def _parsed_phases(phases: list[dict], option: str) -> list:
+    """``phases`` in the recipe (instead of its own) checked as the training spec checks them: paths made
+    absolute, defaults filled in; a problem ends the run with one line naming ``option``."""
     from eponet.core.errors import EponetError
     from eponet.training.config import parse_train_config
-    from eponet.training.trainer import ensure_rbsf
 
     doc = recipe_without(None)
-    doc["phases"][0]["data"] = [doc["phases"][0]["data"], *sources]
+    doc["phases"] = phases
     try:
-        mixed = parse_train_config(doc, base_dir=Path.cwd()).phases[0].data[1:]
-        for source in mixed:
-            if source.kind == "rbsf":
-                ensure_rbsf(source.options)
+        return parse_train_config(doc, base_dir=Path.cwd()).phases
     except EponetError as exc:
-        raise SystemExit(f"--recipe-data: {exc}") from None
-    return [_source_dict(s) for s in mixed]
+        raise SystemExit(f"{option}: {exc}") from None
 
 
 def _source_dict(source) -> dict:
     return {source.kind: {k: str(v) if isinstance(v, Path) else v for k, v in source.options.items()}}
 
 
-def pre_phases(phases: list) -> list[dict]:
-    """``--recipe-phase`` phases checked as the training spec checks them (placed before the recipe's DAVIS phase:
-    paths made absolute, defaults filled in), each data source as ``fold_sources`` takes them."""
-    from eponet.core.errors import EponetError
-    from eponet.training.config import parse_train_config
+def mixed_sources(sources: list) -> list[dict]:
+    """``--recipe-data`` sources, checked in the recipe's DAVIS phase (:func:`_parsed_phases`)."""
+    davis = recipe_without(None)["phases"][0]
+    [phase] = _parsed_phases([{**davis, "data": [davis["data"], *sources]}], "--recipe-data")
+    return [_source_dict(s) for s in phase.data[1:]]
 
-    doc = recipe_without(None)
-    doc["phases"] = [*phases, *doc["phases"]]
-    try:
-        parsed = parse_train_config(doc, base_dir=Path.cwd()).phases[:len(phases)]
-    except EponetError as exc:
-        raise SystemExit(f"--recipe-phase: {exc}") from None
+
+def pre_phases(phases: list) -> list[dict]:
+    """``--recipe-phase`` phases, checked (:func:`_parsed_phases`), each data source as ``fold_sources`` takes them."""
     return [{"name": p.name, "epochs": p.epochs, "samples_per_epoch": p.samples_per_epoch,
-             "data": [_source_dict(s) for s in (p.data if isinstance(p.data, tuple) else (p.data,))]} for p in parsed]
+             "data": [_source_dict(s) for s in (p.data if isinstance(p.data, tuple) else (p.data,))]}
+            for p in _parsed_phases(phases, "--recipe-phase")]
 
 
 def fold_sources(sources: list[dict], i: int, held_out: list[str]) -> list[dict]:
@@ -280,13 +272,20 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         return train_variant(out / f"fold{i}" / "fusion", lambda: fusion_recipe_without(split[i], nets(i)),
                              threads, retrain=False)
 
-    from eponet.training.trainer import ensure_pasted
+    from eponet.core.errors import EponetError
+    from eponet.training.trainer import GENERATORS
 
-    for i in which:  # pasted clips: one set per fold, written before the fold's trainings run side by side
-        sources = [*(recipe_data or []), *(d for p in recipe_phases or [] for d in p["data"])]
+    # generated data (RBSF-style clips, the same for every fold; pasted clips, a set per fold) written before the
+    # folds' trainings run side by side
+    sources = [*(recipe_data or []), *(d for p in recipe_phases or [] for d in p["data"])]
+    for i in which:
         for source in fold_sources(sources, i, split[i]):
-            if "paste" in source:
-                ensure_pasted(source["paste"])
+            [(kind, options)] = source.items()
+            try:
+                if kind in GENERATORS:
+                    GENERATORS[kind](options)
+            except EponetError as exc:
+                raise SystemExit(f"{kind} data of fold {i}: {exc}") from None
     seconds = dict.fromkeys(which, 0.0)
     trainings = [(i, seed) for seed in seeds for i in which]
     with ThreadPoolExecutor(jobs) as pool:  # every network first, then the fusions that read them
@@ -396,7 +395,7 @@ def main(argv=None) -> int:
         if unknown:
             raise SystemExit(f"--sequences: not DAVIS-2016 train sequences: {', '.join(sorted(unknown))}")
         which = [i for i in which if only & set(split[i])]
-    # training data checked (and RBSF-style data generated) before anything is written under --out
+    # training data checked before anything is written under --out
     recipe_data = mixed_sources(args.recipe_data) if args.recipe_data and args.what != "ed" else []
     recipe_phases = pre_phases(args.recipe_phase) if args.recipe_phase and args.what != "ed" else []
     out = args.out or ROOT / "runs" / f"kfold-{args.what}"

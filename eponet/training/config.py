@@ -110,8 +110,8 @@ _PASTE = (
     Param("object_area", "list", [0.02, 0.25], "range of the pasted object's area, as a fraction of the frame"),
     Param("speed", "list", [0.5, 4.0], "range of the pasted object's speed, pixels per frame"),
 )
-#: Data source kinds: their settings, and the key that names their folder.
-_SOURCES = {"davis": (_DAVIS, "root"), "rbsf": (_RBSF, "dir"), "paste": (_PASTE, "dir")}
+#: Data source kinds and their settings.
+_SOURCES = {"davis": _DAVIS, "rbsf": _RBSF, "paste": _PASTE}
 # -- task: fusion (EpO+, paper sections 4.3 and 5.2) --------------------------------------------------------
 _FUSION_MODEL = (
     Param("bottleneck", "int", 128, "channels of the 1x1 bottleneck on the appearance features (128 in the paper)",
@@ -308,12 +308,11 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
             return None
         options = dict(options or {})
         scene = options.pop("scene", None) if kind == "rbsf" else None
-        schema, key = _SOURCES[kind]
+        schema = _SOURCES[kind]
         values, found = validate_params(options, schema, f"{path}.{kind}")
         problems.extend(found)
-        for name in ("object_area", "speed") if kind == "paste" else ():
-            problem = isinstance(values.get(name), list) and _range_problem(values[name], 1.0 if name == "object_area" else None)
-            if problem:
+        for name, upper in (("object_area", 1.0), ("speed", None)) if kind == "paste" else ():
+            if isinstance(values.get(name), list) and (problem := _range_problem(values[name], upper)):
                 problems.append(f"{path}.paste.{name}: {problem}")
         if scene is not None:
             values["scene"] = scene
@@ -323,10 +322,10 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
                 SceneConfig.from_dict(scene)
             except SpecError as exc:
                 problems.extend(f"{path}.rbsf.scene: {p}" for p in exc.problems)
-        values[key] = resolve(f"{path}.{kind}.{key}", values.get(key))
-        if kind == "paste":
-            values["root"] = resolve(f"{path}.paste.root", values.get("root"))
-        root = values.get("root") if kind != "rbsf" else None
+        for param in schema:
+            if param.type == "path":
+                values[param.name] = resolve(f"{path}.{kind}.{param.name}", values.get(param.name))
+        root = values.get("root")
         if root is not None and not (root / "JPEGImages").is_dir():
             problems.append(f"{path}.{kind}.root: {root} is not a DAVIS-layout root (no JPEGImages/)")
         return DataSource(kind, values)

@@ -71,8 +71,8 @@ class MotionNetTrainer(Trainer):
     # -- data ------------------------------------------------------------------------------------
     def load_data(self, source: DataSource) -> list[SequenceData]:
         options = source.options
-        if source.kind in ("rbsf", "paste"):
-            root, resolution = (ensure_rbsf if source.kind == "rbsf" else ensure_pasted)(options, self.context)
+        if source.kind in GENERATORS:
+            root, resolution = GENERATORS[source.kind](options, self.context)
             sequences, exclude = None, []
         else:
             root, resolution = options["root"], options["resolution"]
@@ -281,3 +281,8 @@ def ensure_pasted(options: dict, context: DistributedContext = SINGLE) -> tuple[
     _ensure_generated(root, "eponet-paste.json", recipe, lambda: write_pasted(
         root, names, load, options["clips"], options["frames"], options["seed"], settings), context)
     return root, resolution
+
+
+#: Data source kinds whose clips are written before training: the function that writes them (once per recipe)
+#: and returns their DAVIS-layout root and resolution.
+GENERATORS = {"rbsf": ensure_rbsf, "paste": ensure_pasted}
