@@ -44,11 +44,16 @@ _PLAIN = (bool, int, float, str, type(None))
 
 @dataclass
 class _Accumulator:
-    """Summed distances and group counts of the trajectories still needed, by ascending global id."""
+    """Summed distances and group counts of the trajectories still needed, by ascending global id. What the
+    painting reads (the id index, each trajectory's mean, the median) is derived once per change, not per frame:
+    the accumulator changes once per window of ``run.chunk`` frames."""
 
     ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     sums: np.ndarray = field(default_factory=lambda: np.zeros(0))
     counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    def __post_init__(self) -> None:
+        self._derived: tuple[IdIndex, np.ndarray, float] | None = None
 
     def add(self, ids: np.ndarray, sums: np.ndarray, counts: np.ndarray) -> None:
         union = union_of_ids([self.ids, ids])
@@ -59,27 +64,33 @@ class _Accumulator:
         at = index.positions(ids)
         new_sums[at] += sums
         new_counts[at] += counts
-        self.ids, self.sums, self.counts = union, new_sums, new_counts
+        self.ids, self.sums, self.counts, self._derived = union, new_sums, new_counts, None
 
     def keep(self, alive: np.ndarray) -> None:
         mask = np.isin(self.ids, alive, assume_unique=False)
-        self.ids, self.sums, self.counts = self.ids[mask], self.sums[mask], self.counts[mask]
+        self.ids, self.sums, self.counts, self._derived = self.ids[mask], self.sums[mask], self.counts[mask], None
+
+    def _derive(self) -> tuple[IdIndex, np.ndarray, float]:
+        """The id index, the mean distance of each id float32 ``(n + 1,)`` (NaN where not scored, and a last NaN
+        for ids that are absent) and the median of the scored means."""
+        if self._derived is None:
+            scored = self.counts > 0
+            with np.errstate(invalid="ignore", divide="ignore"):
+                means = (self.sums / np.maximum(self.counts, 1)).astype(np.float32)
+            median = float(np.median(means[scored])) if scored.any() else 0.0
+            means[~scored] = np.nan
+            self._derived = IdIndex(self.ids), np.append(means, np.float32(np.nan)), median
+        return self._derived
 
     def means(self, labels: np.ndarray) -> np.ndarray:
         """Mean distance of the trajectory covering each pixel (NaN where none was scored)."""
         if not len(self.ids):
             return np.full(labels.shape, np.nan, np.float32)
-        at = IdIndex(self.ids).positions(labels)
-        found = at >= 0
-        at = np.maximum(at, 0)
-        counts = np.where(found, self.counts[at], 0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            means = np.where(counts > 0, (self.sums[at] / np.maximum(counts, 1)).astype(np.float32), np.nan)
-        return means.astype(np.float32)
+        index, means, _ = self._derive()
+        return means[index.positions(labels)]  # (position -1, an absent id: the last entry, NaN)
 
     def median(self) -> float:
-        scored = self.counts > 0
-        return float(np.median((self.sums[scored] / self.counts[scored]).astype(np.float32))) if scored.any() else 0.0
+        return self._derive()[2]
 
 
 class _NotCheckpointable(Exception):

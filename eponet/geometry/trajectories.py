@@ -14,7 +14,7 @@ import logging
 import numpy as np
 
 from ..core.imaging import fill_from_neighbourhood
-from ..core.types import TrackFrame, Trajectories, assemble_trajectories
+from ..core.types import TrackFrame, Trajectories, assemble_trajectories, point_words
 from .consistency import exact_round_trip, fb_consistent_points, round_half_up, sample_bilinear
 
 __all__ = [
@@ -204,13 +204,8 @@ class DenseTrajectoryStream:
         return keep[alive], kept_ids[alive]
 
 
-def _rows_view(points: np.ndarray) -> np.ndarray:
-    """(N,) uint64 view of contiguous float32 (N, 2) points: indexing whole rows this way is ~10x faster."""
-    return np.ascontiguousarray(points, dtype=np.float32).view(np.uint64)[:, 0]
-
-
 def _take_rows(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    return _rows_view(points)[idx].view(np.float32).reshape(-1, 2)
+    return point_words(points)[idx].view(np.float32).reshape(-1, 2)
 
 
 def trajectory_ends(trajectories: Trajectories) -> np.ndarray:
