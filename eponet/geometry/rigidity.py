@@ -9,7 +9,7 @@ import numpy as np
 
 from ..core.params import Param
 from ..core.types import FlowPair, RigidityResult, Trajectories
-from .scoring import SamplingHistory, check_rigidity_inputs, ed_maps_from_scores, frame_groups, score_frame_groups
+from .scoring import SAMPLING, SamplingHistory, check_rigidity_inputs, ed_maps_from_scores, frame_groups, score_frame_groups
 from .triplets import FittedModel, RobustSettings
 
 __all__ = ["RigidityStage", "GROUP_PARAMS", "STATIC_PARAMS", "ROBUST_PARAMS", "GRIC_PARAMS"]
@@ -25,8 +25,10 @@ GROUP_PARAMS = (
         "choice",
         "guided",
         "how the fitted sample is drawn: 'guided' down-weights trajectories that earlier groups found moving "
-        "(so a large or absorbed object cannot capture the background model); 'uniform' (the paper)",
-        choices=("guided", "uniform"),
+        "(so a large or absorbed object cannot capture the background model); 'area' also weights each by the "
+        "inverse of the trajectories around it, so the sample covers the frame evenly where trajectories "
+        "survive unevenly; 'uniform' (the paper)",
+        choices=SAMPLING,
     ),
     Param(
         "border_prior",
@@ -108,8 +110,8 @@ class RigidityStage(ABC):
             raise ValueError(f"max_points must be >= 20, got {max_points}")
         if stride < 1:
             raise ValueError(f"stride must be >= 1, got {stride}")
-        if sampling not in ("guided", "uniform"):
-            raise ValueError(f"sampling must be 'guided' or 'uniform', got {sampling!r}")
+        if sampling not in SAMPLING:
+            raise ValueError(f"sampling must be one of {', '.join(SAMPLING)}, got {sampling!r}")
         if not 0.0 <= border_prior <= 0.5:
             raise ValueError(f"border_prior must be in [0, 0.5], got {border_prior}")
         self.sampling = sampling

@@ -74,3 +74,67 @@ def test_a_history_needs_the_global_ids():
     with pytest.raises(ValueError, match="track_ids"):
         score_frame_groups(tracks, [(0, 1, 2)], _identity_estimator([]), np.random.default_rng(0), max_points=20,
                            history=SamplingHistory())
+
+
+def _uneven_survival_tracks(seed: int = 0):
+    """One triplet of exact tracks in a 120 x 160 frame: a camera translating sideways past a rigid scene 4-12 m
+    deep, and an object strip 2.5-3.5 m deep along the bottom of the frame (30% of it, touching three edges)
+    that the camera follows sideways while it moves up: it moves across the epipolar lines, by its own rigid
+    motion. Every object pixel has a track through the
+    triplet; only one background pixel in five has one (the others end after frame 0, as on a blurred
+    background). Returns the tracks, which are on the object, and the frame size."""
+    from eponet.core.types import Trajectories
+
+    rng = np.random.default_rng(seed)
+    h, w, f = 120, 160, 200.0
+    ys, xs = np.mgrid[0:h, 0:w]
+    x0 = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64)
+    on_object = x0[:, 1] >= 0.7 * h
+    depth = np.where(on_object, rng.uniform(2.5, 3.5, len(x0)), rng.uniform(4.0, 12.0, len(x0)))
+    rays = np.column_stack([(x0[:, 0] - w / 2) / f, (x0[:, 1] - h / 2) / f, np.ones(len(x0))]) * depth[:, None]
+    frames = []
+    for k in range(3):
+        points = rays - np.array([0.15 * k, 0.0, 0.0])  # the camera moves 15 cm per frame along x
+        points[on_object] += np.array([0.15 * k, -0.08 * k, 0.0])  # the object moves with the camera, and up
+        frames.append(np.column_stack([points[:, 0] / points[:, 2] * f + w / 2, points[:, 1] / points[:, 2] * f + h / 2]))
+    through = on_object | (rng.random(len(x0)) < 0.2)
+    length = np.where(through, 3, 1).astype(np.int32)
+    offsets = np.concatenate([[0], np.cumsum(length)]).astype(np.int64)
+    positions = np.empty((int(offsets[-1]), 2), np.float32)
+    for k in range(3):
+        rows = offsets[:-1][length > k] + k
+        positions[rows] = frames[k][length > k]
+    labels = np.broadcast_to(np.arange(h * w, dtype=np.int32).reshape(h, w), (3, h, w)).copy()
+    tracks = Trajectories(start=np.zeros(len(x0), np.int32), length=length, offsets=offsets, positions=positions,
+                          labels=labels)
+    return tracks, on_object, (h, w)
+
+
+def test_area_sampling_keeps_the_background_where_its_tracks_die():
+    """Where the background keeps one track in five through the triplet and the object all of its own, the
+    object holds 68% of the tracks alive through it: guided sampling fits the object's motion (the object gets
+    zero distances), area sampling the background's (zero there, the object far off). The epipolar model is
+    kept in both (``degeneracy="none"``), so that only the sample differs."""
+    from eponet.plugins.rigidity.trifocal import TrifocalRigidity
+
+    tracks, on_object, size = _uneven_survival_tracks()
+    alive = tracks.length == 3
+    assert 0.6 < on_object[alive].mean() < 0.75
+    medians = {}
+    for sampling in ("guided", "area"):
+        stage = TrifocalRigidity(sampling=sampling, max_points=1000, degeneracy="none")
+        sums, counts, _ = score_frame_groups(
+            tracks, [(0, 1, 2)], lambda p, g: stage.estimate(p, g, size), np.random.default_rng(0),
+            max_points=1000, sampling=sampling)
+        d = sums[alive] / counts[alive]
+        medians[sampling] = (np.median(d[on_object[alive]]), np.median(d[~on_object[alive]]))
+    assert medians["guided"][0] < 0.1 < 10 < medians["guided"][1]  # the object taken for the background
+    assert medians["area"][1] < 0.1 < 10 < medians["area"][0]  # the background fitted, the object far off it
+
+
+def test_area_weight_known_answers():
+    """Four points in one 10 px cell of a 160 x 160 frame and one alone in another: weights 1/4 and 1."""
+    from eponet.geometry.scoring import area_weight
+
+    x = np.array([[1.0, 1.0], [2.0, 3.0], [9.0, 9.0], [5.0, 0.0], [100.0, 50.0]])
+    assert area_weight(x, (160, 160)).tolist() == [0.25, 0.25, 0.25, 0.25, 1.0]
