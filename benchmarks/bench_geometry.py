@@ -203,9 +203,13 @@ def main(argv=None) -> int:
                         help="loop: the CLI's streaming run loop (default); whole: the whole-video functions")
     parser.add_argument("--variant", default="trifocal", choices=["trifocal", "homography", "fundamental"])
     parser.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
+    parser.add_argument("--child-loop", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
         print(json.dumps(measure(*args.child)))
+        return 0
+    if args.child_loop:  # (a process of its own, so that the peak RSS of its children is this run's)
+        print(json.dumps(measure_loop(Path(args.child_loop[0]), args.child_loop[1])))
         return 0
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     how = ("python -m eponet.run, streaming run loop, its own threads" if args.path == "loop"
@@ -227,15 +231,16 @@ def main(argv=None) -> int:
                 work.mkdir()
                 if args.path == "loop":
                     source, reference = prepare_flow((w, h), frames, path, frame_dir=work / "frames")
-                    r = measure_loop(work / "frames", args.variant)
+                    command = [sys.executable, __file__, "--child-loop", str(work / "frames"), args.variant]
                 else:
                     source, reference = prepare_flow((w, h), frames, path)
                     command = [sys.executable, __file__, "--child", str(path), args.variant]
-                    out = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
-                    if out.returncode != 0:
-                        print(out.stderr.strip().splitlines()[-1] if out.stderr.strip() else "child failed")
-                        return 1
-                    r = json.loads(out.stdout.strip().splitlines()[-1])
+                out = subprocess.run(command, env=None if args.path == "loop" else env, capture_output=True,
+                                     text=True, check=False)
+                if out.returncode != 0:
+                    print(out.stderr.strip().splitlines()[-1] if out.stderr.strip() else "child failed")
+                    return 1
+                r = json.loads(out.stdout.strip().splitlines()[-1])
                 print(f"{size_text:>8} {r['frames']:>6} {r['traj_s_per_frame']:>9.3f} "
                       f"{r['rigidity_s_per_frame']:>9.3f} {r['total_s_per_frame']:>9.3f} {reference:>7.1f} "
                       f"{r['total_s_per_frame'] * 1000 / reference:>7.2f} {r.get('trajectories', '-'):>9} "
