@@ -160,7 +160,7 @@ def _as_int(values, fits: int = 0) -> np.ndarray:
 
 
 def _dense_range(arrays: list[np.ndarray]) -> tuple[int, int] | None:
-    """``(lo, hi)`` of the values of non-empty int64 arrays when a table over that range is small (at most 16
+    """``(lo, hi)`` of the values of non-empty integer arrays when a table over that range is small (at most 16
     entries per value, plus 1024), else None."""
     lo, hi = min(int(a.min()) for a in arrays), max(int(a.max()) for a in arrays)
     return (lo, hi) if hi - lo + 1 <= 16 * sum(len(a) for a in arrays) + 1024 else None
@@ -192,6 +192,8 @@ class IdIndex:
 
     >>> IdIndex(np.array([3, 5, 9])).positions(np.array([9, 3, 4, 12, 5])).tolist()
     [2, 0, -1, -1, 1]
+    >>> IdIndex(np.array([3, 5, 9])).positions(np.array([[5, 2]], np.int32)).tolist()  # any integer type and shape
+    [[1, -1]]
     """
 
     def __init__(self, ids: np.ndarray):

@@ -99,14 +99,16 @@ def test_chunks_carry_trajectories_and_means_across_windows(tmp_path):
     assert ed.max() > 1.0  # the patch is there: not a trivially zero map
 
 
-def test_guided_sampling_carries_its_memory_across_windows(tmp_path, monkeypatch):
+@pytest.mark.parametrize("sampling", ["guided", "area"])
+def test_guided_sampling_carries_its_memory_across_windows(tmp_path, monkeypatch, sampling):
     """Guided sampling weighs each trajectory by its distances in earlier groups: with the stage's history
     carried from window to window, chunks of 4 frames sample and fit every group as the whole video does.
-    Without it (each window starting afresh) the maps differ: the test can tell."""
+    Without it (each window starting afresh) the maps differ: the test can tell. Area sampling is guided
+    sampling with one more weight."""
     from eponet.geometry.rigidity import RigidityStage
 
     folder = _clip(tmp_path / "clip")
-    spec = _spec(folder, tmp_path / "out", rigidity={"sampling": "guided", "max_points": 200},
+    spec = _spec(folder, tmp_path / "out", rigidity={"sampling": sampling, "max_points": 200},
                  run={"chunk": 4, "lag": 14})
     video = load_video(discover_sequences(folder)[0], scale=1.0)
     _, ed, _ = _whole_video(spec, video)
