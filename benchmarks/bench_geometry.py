@@ -43,7 +43,9 @@ DATA = Path(os.environ.get("EPONET_SHARED_DATA") or REPO.parent / "shared" / "da
 DAVIS = DATA / "davis2016-train" / "DAVIS"
 
 
-def _gray_frames(size: tuple[int, int]) -> tuple[list[np.ndarray], str]:
+def _frames(size: tuple[int, int]) -> tuple[list[np.ndarray], str]:
+    """The benchmark's video in colour (BGR uint8) at ``size`` and its name: DAVIS motorbike (480p) or stroller
+    (240p) resized to ``size``, or without the shared data a synthetic rendered scene."""
     import cv2
 
     w, h = size
@@ -52,16 +54,15 @@ def _gray_frames(size: tuple[int, int]) -> tuple[list[np.ndarray], str]:
     elif (DAVIS / "JPEGImages" / "240p" / "stroller").is_dir():
         files, name = sorted((DAVIS / "JPEGImages" / "240p" / "stroller").glob("*.jpg")), "DAVIS stroller 240p"
     else:
-        files, name = [], "synthetic scene"
-    if files:
-        frames = [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in files]
-        frames = [cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) if f.shape != (h, w) else f for f in frames]
-        return frames, f"{name}, resized to {w}x{h}" if frames[0].shape != (h, w) else name
-    sys.path.insert(0, str(REPO))
-    from tests.geometry.scenes import render_scene
+        sys.path.insert(0, str(REPO))
+        from tests.geometry.scenes import render_scene
 
-    video = render_scene(num_frames=40, size=(h, w), seed=0)
-    return [f[..., 0] for f in video.frames], name
+        video = render_scene(num_frames=40, size=(h, w), seed=0)
+        return [np.ascontiguousarray(f[..., ::-1]) for f in video.frames], "synthetic scene"
+    frames = [cv2.imread(str(f), cv2.IMREAD_COLOR) for f in files]
+    resized = frames[0].shape[:2] != (h, w)
+    frames = [cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) if resized else f for f in frames]
+    return frames, f"{name}, resized to {w}x{h}" if resized else name
 
 
 def prepare_flow(size: tuple[int, int], frames: int, out: Path, frame_dir: Path | None = None) -> tuple[str, float]:
@@ -71,7 +72,8 @@ def prepare_flow(size: tuple[int, int], frames: int, out: Path, frame_dir: Path 
     ``.flo`` files in ``frame_dir.parent / "flow"`` (``forward/``, ``backward/``), for the ``flo`` stage."""
     import cv2
 
-    gray, name = _gray_frames(size)
+    colour, name = _frames(size)
+    gray = [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) for f in colour]
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     n = len(gray)
     previous = cv2.getNumThreads()
@@ -101,7 +103,6 @@ def prepare_flow(size: tuple[int, int], frames: int, out: Path, frame_dir: Path 
     if frame_dir is not None:
         from eponet.core.io import write_flo
 
-        colour = _colour_frames(size)
         flow_dir = frame_dir.parent / "flow"
         for sub in (frame_dir, flow_dir / "forward", flow_dir / "backward"):
             sub.mkdir(parents=True, exist_ok=True)
@@ -111,24 +112,6 @@ def prepare_flow(size: tuple[int, int], frames: int, out: Path, frame_dir: Path 
             write_flo(flow_dir / "forward" / f"{k:05d}.flo", f)
             write_flo(flow_dir / "backward" / f"{k:05d}.flo", b)
     return name, reference
-
-
-def _colour_frames(size: tuple[int, int]) -> list[np.ndarray]:
-    """The frames of :func:`_gray_frames` in colour (BGR), at ``size``."""
-    import cv2
-
-    w, h = size
-    if w >= 854 and (DAVIS / "JPEGImages" / "480p" / "motorbike").is_dir():
-        files = sorted((DAVIS / "JPEGImages" / "480p" / "motorbike").glob("*.jpg"))
-    elif (DAVIS / "JPEGImages" / "240p" / "stroller").is_dir():
-        files = sorted((DAVIS / "JPEGImages" / "240p" / "stroller").glob("*.jpg"))
-    else:
-        sys.path.insert(0, str(REPO))
-        from tests.geometry.scenes import render_scene
-
-        return [np.ascontiguousarray(f[..., ::-1]) for f in render_scene(num_frames=40, size=(h, w), seed=0).frames]
-    frames = [cv2.imread(str(f), cv2.IMREAD_COLOR) for f in files]
-    return [cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) if f.shape[:2] != (h, w) else f for f in frames]
 
 
 def _peak_rss_mb() -> float:
