@@ -21,6 +21,7 @@ __all__ = [
     "ED_FLOOR_PX",
     "ED_WINDOW",
     "ED_SAMPLE",
+    "shrunk_means",
     "ed_frame_sample",
     "ed_window_scale",
     "ed_scales",
@@ -57,6 +58,43 @@ ED_FLOOR_PX = 1.0
 ED_WINDOW = 61
 #: At most this many values of a frame enter the percentile (a systematic subsample of its finite values).
 ED_SAMPLE = 4096
+
+
+def shrunk_means(sums: np.ndarray, counts: np.ndarray, prior_groups: float) -> tuple[np.ndarray, float]:
+    """Each trajectory's mean distance, shrunk toward the median of the means by ``prior_groups`` groups' worth.
+
+    ``(sums + k m) / (counts + k)`` with ``m`` the median of ``sums / counts`` over the scored trajectories: the
+    posterior mean of a trajectory's distance when its groups are noisy measurements and ``m`` is the prior,
+    worth ``k`` groups (empirical Bayes). A trajectory scored in one or two groups (spray, motion blur, an
+    occlusion edge, whose flow is least reliable) moves toward the typical distance; one scored in many keeps
+    its own. ``k = 0`` is the plain mean.
+
+    Parameters
+    ----------
+    sums : float (T,)
+        Summed distances in pixels.
+    counts : int (T,)
+        Scored groups per trajectory.
+    prior_groups : float
+        ``k >= 0``.
+
+    Returns
+    -------
+    means : float32 (T,)
+        NaN where ``counts`` is 0.
+    median : float
+        ``m`` (pixels; 0.0 when nothing is scored).
+
+    >>> means, m = shrunk_means(np.array([1.0, 4.0, 30.0]), np.array([1, 2, 10]), 2.0)
+    >>> m, [round(float(v), 3) for v in means]
+    (2.0, [1.667, 2.0, 2.833])
+    """
+    scored = counts > 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        plain = sums / np.maximum(counts, 1)
+    median = float(np.median(plain[scored])) if scored.any() else 0.0
+    means = plain if prior_groups == 0 else (sums + prior_groups * median) / (counts + prior_groups)
+    return np.where(scored, means, np.nan).astype(np.float32), median
 
 
 def ed_frame_sample(ed_frame: np.ndarray, size: int = ED_SAMPLE) -> np.ndarray:

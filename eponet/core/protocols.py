@@ -70,8 +70,9 @@ class RigidityModel(Protocol):
         consecutive windows sharing ``(views - 1) * stride`` frames, the stage's optional attributes, default
         3 and 1) with one generator drawn in order over the windows. When ``per_trajectory`` is given and each
         ``triplets`` record has ``frames`` (window-local) and ``model`` (``"failed"``: not scored), a
-        trajectory's mean is accumulated over all of its groups across windows; otherwise each window's
-        ``ed`` is used as it is.
+        trajectory's mean is accumulated over all of its groups across windows (and shrunk toward the median
+        of the means in flight by the stage's optional ``prior_groups``, default 0:
+        :func:`eponet.core.motion.shrunk_means`); otherwise each window's ``ed`` is used as it is.
 
         A stage that learns from earlier groups (guided sampling) may also have ``new_history()``: the loop
         then calls it once per video and passes the object to every window as ``score(..., history=h,

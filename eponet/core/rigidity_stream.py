@@ -25,6 +25,7 @@ from typing import Iterator
 import numpy as np
 
 from .imaging import fill_from_neighbourhood
+from .motion import shrunk_means
 from .types import FlowPair, IdIndex, TrackFrame, assemble_trajectories, union_of_ids
 
 __all__ = ["GeometryScorer", "CHECKPOINT_SECONDS", "CHECKPOINT_VERSION"]
@@ -51,6 +52,7 @@ class _Accumulator:
     ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     sums: np.ndarray = field(default_factory=lambda: np.zeros(0))
     counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    prior_groups: float = 0.0
 
     def __post_init__(self) -> None:
         self._derived: tuple[IdIndex, np.ndarray, float] | None = None
@@ -71,14 +73,13 @@ class _Accumulator:
         self.ids, self.sums, self.counts, self._derived = self.ids[mask], self.sums[mask], self.counts[mask], None
 
     def _derive(self) -> tuple[IdIndex, np.ndarray, float]:
-        """The id index, the mean distance of each id float32 ``(n + 1,)`` (NaN where not scored, and a last NaN
-        for ids that are absent) and the median of the scored means."""
+        """The id index, the mean distance of each id float32 ``(n + 1,)`` (shrunk by ``prior_groups``, see
+        :func:`~eponet.core.motion.shrunk_means`, toward the median of the means in flight; NaN where not scored,
+        and a last NaN for ids that are absent) and the median of those means."""
         if self._derived is None:
             scored = self.counts > 0
-            with np.errstate(invalid="ignore", divide="ignore"):
-                means = (self.sums / np.maximum(self.counts, 1)).astype(np.float32)
+            means, _ = shrunk_means(self.sums, self.counts, self.prior_groups)
             median = float(np.median(means[scored])) if scored.any() else 0.0
-            means[~scored] = np.nan
             self._derived = IdIndex(self.ids), np.append(means, np.float32(np.nan)), median
         return self._derived
 
@@ -143,7 +144,7 @@ class GeometryScorer:
         self.state = None  # the builder's TrajectoryStream, from the first frame on
         self.records: dict[int, TrackFrame] = {}
         self.pending: deque = deque()  # frames fed and not painted yet
-        self.acc = _Accumulator()
+        self.acc = _Accumulator(prior_groups=float(getattr(self.rigidity, "prior_groups", 0.0)))
         self.history = self.rigidity.new_history() if hasattr(self.rigidity, "new_history") else None
         self.direct: dict[int, np.ndarray] = {}  # maps of windows used as they are (no per-trajectory means)
         self.g_next = 0  # first frame group not yet scored
@@ -231,7 +232,7 @@ class GeometryScorer:
             records = {int(t): TrackFrame(int(t), arrays[f"records.{t}.ids"], arrays[f"records.{t}.positions"],
                                           arrays[f"records.{t}.labels"]) for t in meta["records"]}
             direct = {int(t): arrays[f"direct.{t}"] for t in meta["direct"]}
-            acc = _Accumulator(arrays["acc.ids"], arrays["acc.sums"], arrays["acc.counts"])
+            acc = _Accumulator(arrays["acc.ids"], arrays["acc.sums"], arrays["acc.counts"], self.acc.prior_groups)
             rng = np.random.default_rng(0)
             rng.bit_generator.state = meta["rng"]
         except (_NotCheckpointable, KeyError, TypeError, ValueError) as exc:

@@ -40,6 +40,16 @@ GROUP_PARAMS = (
         minimum=0.0,
         maximum=0.5,
     ),
+    Param(
+        "prior_groups",
+        "float",
+        0.0,
+        "how many frame groups' worth of the typical distance a trajectory's mean starts from: the maps paint "
+        "(sum + k * median) / (groups + k), the video's median of the trajectories' means (a stream's: of those "
+        "in flight), so that a trajectory scored in few groups (spray, blur, an occlusion edge) is pulled toward "
+        "the typical distance and a long one keeps its own; 0: the plain mean (the paper)",
+        minimum=0.0,
+    ),
 )
 
 #: The static-camera test (stages with an epipolar model).
@@ -100,6 +110,7 @@ class RigidityStage(ABC):
         stride: int = 1,
         sampling: str = "guided",
         border_prior: float = 0.15,
+        prior_groups: float = 0.0,
         static_threshold: float = 0.25,
         confidence: float = 0.99,
         max_trials: int = 1000,
@@ -114,6 +125,9 @@ class RigidityStage(ABC):
             raise ValueError(f"sampling must be one of {', '.join(SAMPLING)}, got {sampling!r}")
         if not 0.0 <= border_prior <= 0.5:
             raise ValueError(f"border_prior must be in [0, 0.5], got {border_prior}")
+        if not prior_groups >= 0:
+            raise ValueError(f"prior_groups must be >= 0, got {prior_groups}")
+        self.prior_groups = float(prior_groups)
         self.sampling = sampling
         self.border_prior = float(border_prior)
         self.max_points = int(max_points)
@@ -161,5 +175,5 @@ class RigidityStage(ABC):
             trajectories, groups, estimate, rng, max_points=self.max_points, sampling=self.sampling,
             border=self.border_prior, history=history, track_ids=track_ids,
         )
-        per_trajectory, ed = ed_maps_from_scores(trajectories, sums, counts)
+        per_trajectory, ed = ed_maps_from_scores(trajectories, sums, counts, prior_groups=self.prior_groups)
         return RigidityResult(ed=ed, per_trajectory=per_trajectory, triplets=infos)

@@ -14,6 +14,7 @@ from typing import Callable
 import numpy as np
 
 from ..core.errors import InputError
+from ..core.motion import shrunk_means
 from ..core.types import MIN_FRAMES, FlowPair, Trajectories
 from .trajectories import (
     alive_in_frames,
@@ -264,11 +265,12 @@ def score_frame_groups(
 
 
 def ed_maps_from_scores(
-    trajectories: Trajectories, sums: np.ndarray, counts: np.ndarray
+    trajectories: Trajectories, sums: np.ndarray, counts: np.ndarray, prior_groups: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-trajectory mean distance and the per-pixel ED maps.
 
-    Every pixel takes the value of the trajectory covering it. Pixels of trajectories with no scored group
+    Every pixel takes the value of the trajectory covering it: its mean, shrunk by ``prior_groups`` toward the
+    video's median (:func:`shrunk_means`; 0: the plain mean). Pixels of trajectories with no scored group
     (too short to span one, or all of their groups failed) take the value of the nearest scored pixel in the
     same frame (:func:`~eponet.geometry.trajectories.fill_from_neighbourhood`), never 0; such a trajectory's
     own ``per_trajectory`` value is the one its first pixel received. A frame without any scored pixel takes
@@ -277,17 +279,18 @@ def ed_maps_from_scores(
     Returns
     -------
     per_trajectory : float32 (T,)
+        The plain mean (what a stream accumulates across its windows), whatever ``prior_groups``.
     ed : float32 (F, H, W)
     """
-    with np.errstate(invalid="ignore", divide="ignore"):
-        per_traj = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan).astype(np.float32)
     scored = counts > 0
+    per_traj, _ = shrunk_means(sums, counts, 0.0)
+    painted, _ = shrunk_means(sums, counts, prior_groups)
     if scored.any():
-        fallback = float(np.median(per_traj[scored]))
+        fallback = float(np.median(painted[scored]))
     else:
         log.warning("no trajectory could be scored; ED maps are 0")
         fallback = 0.0
-    ed = paint_trajectory_values(trajectories.labels, per_traj)
+    ed = paint_trajectory_values(trajectories.labels, painted)
     for t in range(ed.shape[0]):
         valid = ~np.isnan(ed[t])
         if not valid.all():

@@ -267,3 +267,17 @@ def test_plugins_command_prints_the_graph():
 
     out = subprocess.run([sys.executable, "-m", "eponet", "plugins", "rigidity"], capture_output=True, text=True).stdout
     assert "protocol RigidityModel.score(); consumes trajectories, flow; produces ed; context groups; cached" in out
+
+
+def test_shrunk_means_in_one_window_equal_the_whole_videos(tmp_path):
+    """``prior_groups``: the stream shrinks each trajectory's mean toward the median of the means in flight; with
+    one window every trajectory is in flight, so the maps are the whole video's (up to float32 rounding of the
+    window's means), and they differ from the plain means' (the test can tell)."""
+    folder = _clip(tmp_path / "clip")
+    spec = _spec(folder, tmp_path / "out", rigidity={"prior_groups": 3.0}, run={"chunk": 32, "lag": 32})
+    video = load_video(discover_sequences(folder)[0], scale=1.0)
+    _, ed, _ = _whole_video(spec, video)
+    streamed = Pipeline(spec).process(video).ed
+    np.testing.assert_allclose(streamed, ed, rtol=1e-5, atol=1e-6)
+    plain = Pipeline(_spec(folder, tmp_path / "out2", run={"chunk": 32, "lag": 32})).process(video).ed
+    assert np.abs(plain - streamed).max() > 0.1

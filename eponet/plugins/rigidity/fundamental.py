@@ -31,6 +31,7 @@ class FundamentalRigidity(RigidityStage):
         stride: int = 1,
         sampling: str = "guided",
         border_prior: float = 0.15,
+        prior_groups: float = 0.0,
         static_threshold: float = 0.25,
         confidence: float = 0.99,
         max_trials: int = 1000,
@@ -41,6 +42,7 @@ class FundamentalRigidity(RigidityStage):
             raise ValueError(f"degeneracy must be 'gric' or 'none', got {degeneracy!r}")
         super().__init__(
             max_points=max_points, stride=stride, sampling=sampling, border_prior=border_prior,
+            prior_groups=prior_groups,
             static_threshold=static_threshold,
             confidence=confidence,
             max_trials=max_trials, threshold=threshold, min_sigma=min_sigma,

@@ -28,12 +28,14 @@ class HomographyRigidity(RigidityStage):
         stride: int = 1,
         sampling: str = "guided",
         border_prior: float = 0.15,
+        prior_groups: float = 0.0,
         confidence: float = 0.99,
         max_trials: int = 1000,
         threshold: float | None = None,
     ):
         super().__init__(
             max_points=max_points, stride=stride, sampling=sampling, border_prior=border_prior,
+            prior_groups=prior_groups,
             static_threshold=0.0, confidence=confidence,
             max_trials=max_trials, threshold=threshold,
         )

@@ -38,6 +38,7 @@ class TrifocalRigidity(RigidityStage):
         stride: int = 1,
         sampling: str = "guided",
         border_prior: float = 0.15,
+        prior_groups: float = 0.0,
         static_threshold: float = 0.25,
         confidence: float = 0.99,
         max_trials: int = 1000,
@@ -48,6 +49,7 @@ class TrifocalRigidity(RigidityStage):
             raise ValueError(f"degeneracy must be one of {', '.join(DEGENERACY)}, got {degeneracy!r}")
         super().__init__(
             max_points=max_points, stride=stride, sampling=sampling, border_prior=border_prior,
+            prior_groups=prior_groups,
             static_threshold=static_threshold,
             confidence=confidence,
             max_trials=max_trials, threshold=threshold, min_sigma=min_sigma,

@@ -141,6 +141,29 @@ def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
     assert centred.flow_centring == "rigid" and centred.config["flow_centring"] == "rigid"
     assert_shipped_weights("epo-davis-distilled", "motion_net")
     assert len(EpoUNetStage(weights="epo-davis-distilled").models) == 1  # one network for the pair's cost of two
+    assert_shipped_weights("epo-davis-v5", "motion_net")
+    assert_shipped_weights("epo-davis-v5-seed1", "motion_net")
+    assert len(EpoUNetStage(weights=["epo-davis-v5", "epo-davis-v5-seed1"]).models) == 2  # the epo preset's pair
+
+
+def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
+    """v5 was trained on shrunk means (``prior_groups`` 4, the recipe's) and the epo preset paints them; epo-st and
+    epo+ keep the v4 networks on plain means, as their figures were measured."""
+
+    from eponet.core.registry import get_registry
+    from eponet.weights import builtin_weights
+
+    registry = get_registry()
+    epo = registry.resolve_preset("epo")
+    assert epo["motion_net"]["weights"] == ["epo-davis-v5", "epo-davis-v5-seed1"]
+    assert epo["rigidity"]["prior_groups"] == 4
+    for name in ("epo-davis-v5", "epo-davis-v5-seed1"):
+        saved = torch.load(builtin_weights()[name].file, map_location="cpu", weights_only=False)
+        assert saved["meta"]["spec"]["geometry"]["stages"]["rigidity"]["prior_groups"] == 4
+    for preset in ("epo-st", "epo+"):
+        stages = registry.resolve_preset(preset)
+        assert stages["motion_net"]["weights"] == ["epo-davis", "epo-davis-seed1"]
+        assert stages["rigidity"].get("prior_groups", 0) == 0
 
 
 def test_epo_preset_on_the_embedded_demo_reaches_the_target_j(tmp_path):
