@@ -284,7 +284,7 @@ def ed_maps_from_scores(
     """
     scored = counts > 0
     per_traj, _ = shrunk_means(sums, counts, 0.0)
-    painted, _ = shrunk_means(sums, counts, prior_groups)
+    painted = per_traj if prior_groups == 0 else shrunk_means(sums, counts, prior_groups)[0]
     if scored.any():
         fallback = float(np.median(painted[scored]))
     else:

@@ -168,13 +168,12 @@ def _spray_tracks(seed: int = 0, frames: int = 9, jitter: float = 1.0):
                            + [np.full(spray.sum(), s, np.int32) for s in range(0, frames, 3)])
     length = np.where(spray[pixel], np.minimum(3, frames - start), frames).astype(np.int32)
     offsets = np.concatenate([[0], np.cumsum(length)]).astype(np.int64)
-    positions = np.empty((int(offsets[-1]), 2), np.float32)
+    track = np.repeat(np.arange(len(pixel)), length)  # the track of each row of positions
+    frame = start[track] + np.arange(len(track)) - offsets[track]
+    at = pixel[track]
+    positions = (projected[frame, at] + rng.normal(0, jitter, (len(track), 2)) * spray[at, None]).astype(np.float32)
     labels = np.empty((frames, h, w), np.int32)
-    for j in range(len(pixel)):
-        t = np.arange(start[j], start[j] + length[j])
-        xy = projected[t, pixel[j]]
-        positions[offsets[j]:offsets[j + 1]] = xy + rng.normal(0, jitter, xy.shape) * spray[pixel[j]]
-        labels[t, pixel[j] // w, pixel[j] % w] = j
+    labels[frame, at // w, at % w] = track
     tracks = Trajectories(start=start, length=length, offsets=offsets, positions=positions, labels=labels)
     return tracks, on_object.reshape(h, w), spray.reshape(h, w)
 
