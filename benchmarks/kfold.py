@@ -230,7 +230,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
-    (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns;
+    (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns, and onto
+    the fusion recipe's with ``plus``;
     ``recipe_model``: onto its ``model`` section, e.g. ``flow_centring``). ``plus``: then
     train each fold's EpO+ fusion on that fold's frozen network (into ``out/fold<i>/fusion``) and score the
     ``epo+`` preset with both. ``run``: the spec's ``run`` settings; ``only``: score these sequences only;
@@ -269,8 +270,12 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         return train_variant(folder(i, seed), lambda: recipe(i, seed), threads, retrain=False)
 
     def train_fusion(i):
-        return train_variant(out / f"fold{i}" / "fusion", lambda: fusion_recipe_without(split[i], nets(i)),
-                             threads, retrain=False)
+        def fusion_recipe():
+            doc = fusion_recipe_without(split[i], nets(i))
+            doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})  # the ED the networks learnt on
+            return doc
+
+        return train_variant(out / f"fold{i}" / "fusion", fusion_recipe, threads, retrain=False)
 
     from eponet.core.errors import EponetError
     from eponet.training.trainer import GENERATORS
