@@ -147,8 +147,9 @@ def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
 
 
 def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
-    """v5 was trained on shrunk means (``prior_groups`` 4, the recipe's) and the epo preset paints them; epo-st and
-    epo+ keep the v4 networks on plain means, as their figures were measured."""
+    """v5 was trained on shrunk means (``prior_groups`` 4, the recipe's) and the epo and epo-st presets paint them
+    (epo-st runs v5 alone, as its figures were measured); epo+ keeps the v4 networks on plain means, which its
+    fusion was trained on."""
 
     from eponet.core.registry import get_registry
     from eponet.weights import builtin_weights
@@ -160,10 +161,13 @@ def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
     for name in ("epo-davis-v5", "epo-davis-v5-seed1"):
         saved = torch.load(builtin_weights()[name].file, map_location="cpu", weights_only=False)
         assert saved["meta"]["spec"]["geometry"]["stages"]["rigidity"]["prior_groups"] == 4
-    for preset in ("epo-st", "epo+"):
-        stages = registry.resolve_preset(preset)
-        assert stages["motion_net"]["weights"] == ["epo-davis", "epo-davis-seed1"]
-        assert stages["rigidity"].get("prior_groups", 0) == 0
+    selftrained = registry.resolve_preset("epo-st")
+    assert selftrained["motion_net"]["weights"] == "epo-davis-v5"
+    assert selftrained["rigidity"] == {"plugin": "trifocal", "prior_groups": 4}  # epo's ED (the stage's defaults)
+    assert epo["rigidity"] == selftrained["rigidity"]
+    fused = registry.resolve_preset("epo+")
+    assert fused["motion_net"]["weights"] == ["epo-davis", "epo-davis-seed1"]
+    assert fused["rigidity"].get("prior_groups", 0) == 0
 
 
 def test_epo_preset_on_the_embedded_demo_reaches_the_target_j(tmp_path):
