@@ -356,7 +356,7 @@ def main(argv=None) -> int:
                         help="key=value merged onto the training recipe's model section, e.g. flow_centring=rigid")
     parser.add_argument("--seeds", default="0",
                         help="epo: comma-separated training seeds; the held-out sequences run the mean of the seeds' "
-                        "networks (0,1: the epo preset's pair; the first seed's are fold<i>/weights.pt)")
+                        "networks (0,1: a pair, as the epo+ preset runs; the first seed's are fold<i>/weights.pt)")
     parser.add_argument("--recipe-data", type=yaml_value, action="append", default=[],
                         help="a data source (YAML) mixed into the recipe's DAVIS phase, e.g. '{rbsf: {dir: runs/rbsf-mix, "
                              "sequences: 24, scene: {dynamic_texture_probability: 1.0}}}' or '{paste: {dir: runs/paste, root: "

@@ -219,7 +219,13 @@ def test_interrupted_run_resumes_with_identical_outputs(tmp_path, monkeypatch):
     assert processed == ["b", "c"] and manifest["sequences"]["a"]["resumed"] is True
     assert _files(tmp_path / "out") == reference
     run = json.loads((tmp_path / "out" / "run.json").read_text())
-    assert len(run["weights_sha256"]["motion_net"]) == 2 and all(len(d) == 64 for d in run["weights_sha256"]["motion_net"])
+    from eponet.core.registry import get_registry
+    from eponet.weights import builtin_weights
+
+    names = get_registry().resolve_preset("epo")["motion_net"]["weights"]
+    expected = [builtin_weights()[n].sha256 for n in ([names] if isinstance(names, str) else names)]
+    recorded = run["weights_sha256"]["motion_net"]
+    assert ([recorded] if isinstance(recorded, str) else recorded) == expected  # every weights file used, verified
     assert run["resolved"]["motion_net"]["precision"] in ("float32", "bfloat16")  # what `auto` became, if asked
 
 

@@ -135,7 +135,7 @@ def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
     assert_shipped_weights("epo-davis-seed1", "motion_net")
     assert_shipped_weights("epo-davis-v3", "motion_net")
     EpoUNetStage()  # the default loads the built-in weights
-    assert len(EpoUNetStage(weights=["epo-davis", "epo-davis-seed1"]).models) == 2  # the epo preset's pair
+    assert len(EpoUNetStage(weights=["epo-davis", "epo-davis-seed1"]).models) == 2  # the epo+ preset's pair
     assert_shipped_weights("epo-davis-centred", "motion_net")
     centred = EpoUNetStage(weights="epo-davis-centred").models[0]
     assert centred.flow_centring == "rigid" and centred.config["flow_centring"] == "rigid"
@@ -143,20 +143,20 @@ def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
     assert len(EpoUNetStage(weights="epo-davis-distilled").models) == 1  # one network for the pair's cost of two
     assert_shipped_weights("epo-davis-v5", "motion_net")
     assert_shipped_weights("epo-davis-v5-seed1", "motion_net")
-    assert len(EpoUNetStage(weights=["epo-davis-v5", "epo-davis-v5-seed1"]).models) == 2  # the epo preset's pair
+    assert len(EpoUNetStage(weights=["epo-davis-v5", "epo-davis-v5-seed1"]).models) == 2  # the pair the epo preset ran before 2026-12-06
 
 
 def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
     """v5 was trained on shrunk means (``prior_groups`` 4, the recipe's) and the epo and epo-st presets paint them
-    (epo-st runs v5 alone, as its figures were measured); epo+ keeps the v4 networks on plain means, which its
-    fusion was trained on."""
+    and run v5 alone (one network held out as well as the pair); epo+ keeps the v4 networks on plain means, which
+    its fusion was trained on."""
 
     from eponet.core.registry import get_registry
     from eponet.weights import builtin_weights
 
     registry = get_registry()
     epo = registry.resolve_preset("epo")
-    assert epo["motion_net"]["weights"] == ["epo-davis-v5", "epo-davis-v5-seed1"]
+    assert epo["motion_net"]["weights"] == "epo-davis-v5"
     assert epo["rigidity"]["prior_groups"] == 4
     for name in ("epo-davis-v5", "epo-davis-v5-seed1"):
         saved = torch.load(builtin_weights()[name].file, map_location="cpu", weights_only=False)
