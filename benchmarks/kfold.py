@@ -22,6 +22,9 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
         # the same networks through another preset (here with per-video self-training; --fusion key=value)
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus
         # EpO+: each fold's fusion (examples/train-epo-plus.yaml) trained on the fold's frozen network
+    python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus-oof --fusion-maps out-of-fold
+        # the same, each training sequence's map from the network of the fold that held it out (scouting only:
+        # those networks saw the fold's own sequences)
     python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-ed-video --run ed_window=null \
         --sequences bmx-bumps,car-turn,dance-jump,hockey,paragliding,stroller
         # some sequences only, with other run settings (here the whole video's ED scale)
@@ -226,7 +229,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             seeds: tuple[int, ...] = (0,), crf_settings: dict | None = None, run_seed: int = 0,
             flow: dict | None = None, motion_net: dict | None = None, recipe_model: dict | None = None,
             teacher: Path | None = None, teacher_seeds: tuple[int, ...] = (0, 1), teacher_share: float = 0.5,
-            recipe_data: list[dict] | None = None, recipe_phases: list[dict] | None = None) -> dict[str, dict]:
+            recipe_data: list[dict] | None = None, recipe_phases: list[dict] | None = None,
+            fusion_maps: str = "own") -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
@@ -241,7 +245,12 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     like ``weights`` (seeds ``teacher_seeds``) that each fold's recipe distils (``teacher: {weights: ..., share:
     teacher_share}``), i.e. networks trained without the same held-out sequences. ``recipe_phases``: phases
     (``pre_phases``) trained before the recipe's DAVIS phase. ``recipe_data``: data sources
-    (``{rbsf: {dir: ..., scene: {...}}}``, absolute paths) mixed into the recipe's DAVIS phase."""
+    (``{rbsf: {dir: ..., scene: {...}}}``, absolute paths) mixed into the recipe's DAVIS phase.
+    ``fusion_maps``: ``own``, the fusion of fold ``i`` learns on fold ``i``'s network's maps of its 24 training
+    sequences (maps of sequences that network was trained on); ``out-of-fold``, each of them from the network of the
+    fold that held it out (``motion_maps`` of the fusion recipe: maps as unseen video gets them, as stacking asks;
+    but those networks were trained on fold ``i``'s sequences, so the figures are not fully held out: a scouting
+    measure, not a figure of record)."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
@@ -273,6 +282,9 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         def fusion_recipe():
             doc = fusion_recipe_without(split[i], nets(i))
             doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})  # the ED the networks learnt on
+            if fusion_maps == "out-of-fold":
+                doc["motion_maps"] = [{"weights": [str(path.resolve()) for path in nets(j)], "sequences": split[j]}
+                                      for j in range(len(split)) if j != i]
             return doc
 
         return train_variant(out / f"fold{i}" / "fusion", fusion_recipe, threads, retrain=False)
@@ -387,6 +399,10 @@ def main(argv=None) -> int:
                         "self-training), to measure how far the figures move by chance")
     parser.add_argument("--save", default="masks",
                         help="epo: comma-separated outputs of the held-out runs (output.save), e.g. masks,saliency,ed")
+    parser.add_argument("--fusion-maps", choices=("own", "out-of-fold"), default="own",
+                        help="epo+: the maps each fold's fusion learns on: its own network's (trained on those "
+                        "sequences) or, for each sequence, the network of the fold that held it out (every fold's "
+                        "network must exist: a scouting measure, see run_epo)")
     parser.add_argument("--attributes", nargs="*", default=list(ATTRIBUTES))
     args = parser.parse_args(argv)
     if not (DAVIS / "ImageSets" / "train.txt").exists():
@@ -429,7 +445,7 @@ def main(argv=None) -> int:
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
                                args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share,
-                               recipe_data, recipe_phases)
+                               recipe_data, recipe_phases, args.fusion_maps)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -450,6 +466,8 @@ def main(argv=None) -> int:
             meta["seeds"] = list(seeds)
         if plus:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
+        if args.fusion_maps != "own":  # (kept out of the default's record: earlier reports still merge)
+            meta["fusion_maps"] = args.fusion_maps
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)
             meta.update(preset=preset, fusion=fusion)
     if args.seed:  # (kept out of the default's record: earlier reports still merge)

@@ -23,7 +23,7 @@ TASKS = ("motion_net", "fusion")
 _COMMON_TOP_LEVEL = ("task", "seed", "model", "geometry", "phases", "validation", "optimizer", "loss", "input_dropout",
                      "augment", "output", "cache", "device", "threads", "distributed")
 TOP_LEVEL = _COMMON_TOP_LEVEL + ("teacher",)
-FUSION_TOP_LEVEL = _COMMON_TOP_LEVEL + ("motion_net", "appearance", "clips")
+FUSION_TOP_LEVEL = _COMMON_TOP_LEVEL + ("motion_net", "appearance", "clips", "motion_maps")
 
 #: Shared by both tasks' optimiser sections.
 _EMA = Param("ema", "float", 0.0, "decay of an exponential moving average of the weights, updated every step, that "
@@ -213,6 +213,47 @@ class TrainConfig:
     loss: dict = field(default_factory=lambda: {"name": "bce", "iou_weight": 1.0})
     distributed: dict = field(default_factory=lambda: {"timeout": DEFAULT_TIMEOUT})
     teacher: dict = field(default_factory=lambda: {"weights": [], "share": 0.5})
+    #: ``task: fusion``: ``{sequence name: weights}`` whose motion net gives that sequence's training (and
+    #: validation) maps instead of ``stages["motion_net"]``'s weights (``motion_maps`` in the spec)
+    motion_maps: dict = field(default_factory=dict)
+
+
+def motion_maps_problems(raw, resolve) -> tuple[dict, list[str]]:
+    """``{sequence: weights}`` from a fusion spec's ``motion_maps`` (a list of ``{weights: name, file or list of
+    them, sequences: [names]}``: e.g. each sequence's map from a network trained without it, out of fold), with
+    weights files resolved as ``resolve`` does, and the problems found."""
+    from eponet.core.errors import MissingWeights
+    from eponet.weights import resolve_weights
+
+    expected = "motion_maps: expected a list of {weights: <name, file or list>, sequences: [<names>]}"
+    if not isinstance(raw, list):
+        return {}, [f"{expected}, got {raw!r}"]
+    out: dict = {}
+    problems: list[str] = []
+    for i, entry in enumerate(raw):
+        where = f"motion_maps[{i}]"
+        if not isinstance(entry, dict) or set(entry) != {"weights", "sequences"}:
+            problems.append(f"{where}: expected {{weights: ..., sequences: [...]}}, got {entry!r}")
+            continue
+        weights, names = entry["weights"], entry["sequences"]
+        listed = weights if isinstance(weights, list) else [weights]
+        if not listed or not all(isinstance(w, str) and w for w in listed):
+            problems.append(f"{where}.weights: expected a weights name or file, or a list of them, got {weights!r}")
+            continue
+        if not (isinstance(names, list) and names and all(isinstance(n, str) and n for n in names)):
+            problems.append(f"{where}.sequences: expected a list of sequence names, got {names!r}")
+            continue
+        listed = [str(resolve(f"{where}.weights", w)) if w.endswith(".pt") else w for w in listed]
+        for w in listed:
+            try:
+                resolve_weights(w, kind="motion_net")
+            except MissingWeights as exc:
+                problems.append(f"{where}.weights: {exc.problem}")
+        for name in names:
+            if name in out:
+                problems.append(f"{where}.sequences: {name!r} is given a motion net twice")
+            out[name] = listed if isinstance(weights, list) else listed[0]
+    return out, problems
 
 
 def load_train_config(path: str | Path, overrides: list[str] = ()) -> TrainConfig:
@@ -287,6 +328,10 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
     else:  # files relative to the spec, like the other paths; built-in names as they are
         teacher["weights"] = [str(resolve("teacher.weights", w)) if w.endswith(".pt") else w
                               for w in teacher["weights"]]
+    motion_maps = {}
+    if task == "fusion" and document.get("motion_maps") is not None:
+        motion_maps, found = motion_maps_problems(document["motion_maps"], resolve)
+        problems.extend(found)
     device = document.get("device", "auto")
     if device not in ("auto", "cpu", "cuda"):
         problems.append(f"device: expected one of 'auto', 'cpu', 'cuda', got {device!r}")
@@ -394,5 +439,5 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
         optimizer=optimizer, input_dropout=dropout, augment=augment, output_dir=resolve("output.dir", output["dir"]),
         cache_enabled=cache["enabled"], cache_dir=resolve("cache.dir", cache["dir"]) or default_cache_dir(),
         device=device, threads=threads, file=file, document=document, stages=stages, clips=clips, loss=loss,
-        distributed=distributed, teacher=teacher,
+        distributed=distributed, teacher=teacher, motion_maps=motion_maps,
     )

@@ -63,6 +63,7 @@ class FusionTrainer(Trainer):
         super().__init__(config, context=context)
         self.model = ConvGRUFusion(appearance_channels, **config.model).to(self.device)
         self._motion_stage = None
+        self._motion_stages: dict = {}  # motion_maps: stages by their weights
 
     # -- data ------------------------------------------------------------------------------------
     def load_data(self, source: DataSource) -> list[FusionSequence]:
@@ -79,13 +80,21 @@ class FusionTrainer(Trainer):
         for i in track(self.context.share_first(len(names)), desc="fusion data", total=len(names)):
             [seq] = load_motion_sequences(self.config.geometry, root, resolution=options["resolution"],
                                           sequences=[names[i]], cache=self.cache, features=True)
-            saliency = self.motion_stage().predict(seq.motion.astype(np.float32))
+            saliency = self.motion_stage(names[i]).predict(seq.motion.astype(np.float32))
             out[i] = FusionSequence(seq.name, seq.features, saliency.astype(np.float16), seq.masks)
             log.info("%s: %d frames, features %s", names[i], len(seq.masks), seq.features.shape[1:])
         return out
 
-    def motion_stage(self):
-        """The spec's trained motion net stage, built once."""
+    def motion_stage(self, sequence: str | None = None):
+        """The spec's trained motion net stage, built once; for a sequence that ``motion_maps`` names, the same
+        stage with the weights given there."""
+        weights = self.config.motion_maps.get(sequence)
+        if weights is not None:
+            key = str(weights)
+            if key not in self._motion_stages:
+                config = self.config.stages["motion_net"]
+                self._motion_stages[key] = config.spec.factory(**{**config.params, "weights": weights, "sha256": None})
+            return self._motion_stages[key]
         if self._motion_stage is None:
             self._motion_stage = self.config.stages["motion_net"].build()
         return self._motion_stage
@@ -210,6 +219,9 @@ class FusionTrainer(Trainer):
         meta = {kind: {"plugin": c.plugin, "params": c.params} for kind, c in self.config.stages.items()}
         if self._motion_stage is not None and getattr(self._motion_stage, "sha256", None):
             meta["motion_net"]["sha256"] = self._motion_stage.sha256
+        if self.config.motion_maps:
+            meta["motion_maps"] = {name: {"weights": w, "sha256": getattr(self._motion_stages.get(str(w)), "sha256", None)}
+                                   for name, w in self.config.motion_maps.items()}
         return meta
 
     def model_card(self, summary: dict, history: list[dict]) -> str:
@@ -237,7 +249,10 @@ def fusion_model_card(config: TrainConfig, summary: dict, history: list[dict], m
                             else f"{model['appearance_channels']} channels (not recorded)")
         + " (the paper: DeepLab fc6, 1024 channels at stride 8)",
         "- motion net: " + (f"{stages['motion_net'].plugin} {stages['motion_net'].params}" if "motion_net" in stages
-                            else "not recorded"),
+                            else "not recorded")
+        + (f"; the maps of {len(config.motion_maps)} sequences from other weights (motion_maps): "
+           + ", ".join(f"{name} {Path(str(w)).name if isinstance(w, str) else [Path(x).name for x in w]}"
+                       for name, w in sorted(config.motion_maps.items())) if config.motion_maps else ""),
         trained_line(config, summary),
         f"- optimiser: {o['name']}, {schedule}, momentum {o['momentum']}, weight decay {o['weight_decay']}, "
         f"{o['batch_size']} clip(s) of {config.clips.get('length')} frames per step (BPTT, {config.loss['name']} loss), gradients clipped to "

@@ -115,3 +115,41 @@ def test_eponet_train_fusion_end_to_end_then_run_epo_plus(tmp_path, davis, motio
     manifest = Pipeline(spec).run()
     assert manifest["sequences"]["beta"]["cached"] == ["flow", "trajectories", "rigidity", "appearance"]  # from training
     assert len(list((tmp_path / "run" / "alpha" / "masks").iterdir())) == 6
+
+
+def test_motion_maps_give_the_named_sequences_another_networks_maps(tmp_path, davis, motion_weights):
+    """``motion_maps`` (out-of-fold maps for stacking): a named sequence's training map is exactly what the network
+    given for it predicts, not the spec's motion net's; bad entries are reported with the spec's other problems."""
+    from eponet.nets import EpoUNet
+    from eponet.training.data import load_motion_sequences
+    from eponet.training.fusion import FusionTrainer
+    from eponet.weights import sha256_of
+
+    torch.manual_seed(1)
+    other = EpoUNet(depth=2, widths=(4, 8), head_channels=4)
+    torch.nn.init.constant_(other.classifier.bias, 2.0)  # sure of foreground everywhere: not the spec's net's ~0.5
+    torch.save({"config": other.config, "state_dict": other.state_dict()}, tmp_path / "other.pt")
+    config = load_train_config(_spec(tmp_path, motion_maps=[{"weights": "other.pt", "sequences": ["alpha"]}]))
+    assert config.motion_maps == {"alpha": str(tmp_path / "other.pt")}
+    trainer = FusionTrainer(config, appearance_channels=0)
+    [alpha] = trainer.load_data(config.phases[0].data)
+    named, spec_net = trainer.motion_stage("alpha"), trainer.motion_stage()
+    assert named.sha256 == sha256_of(tmp_path / "other.pt") and spec_net.sha256 == sha256_of(motion_weights)
+    [seq] = load_motion_sequences(config.geometry, davis, resolution="240p", sequences=["alpha"], cache=trainer.cache,
+                                  features=True)
+    motion = seq.motion.astype(np.float32)
+    np.testing.assert_allclose(alpha.saliency.astype(np.float32), named.predict(motion), atol=2e-3)
+    assert np.abs(spec_net.predict(motion) - named.predict(motion)).min() > 0.3
+    assert trainer.weights_meta()["motion_maps"]["alpha"]["sha256"] == sha256_of(tmp_path / "other.pt")
+
+    with pytest.raises(SpecError) as error:
+        load_train_config(_spec(tmp_path, motion_maps=[{"weights": "gone.pt", "sequences": ["alpha"]},
+                                                       {"weights": "other.pt", "sequences": ["alpha", "beta"]},
+                                                       {"weights": "other.pt"}], clips={"length": 1}))
+    problems = "\n".join(error.value.problems)
+    assert "motion_maps[0].weights: " in problems and "gone.pt" in problems
+    assert "motion_maps[1].sequences: 'alpha' is given a motion net twice" in problems
+    assert "motion_maps[2]: expected {weights: ..., sequences: [...]}" in problems
+    assert "clips.length: expected an integer >= 2, got 1" in problems  # validated as a whole
+    with pytest.raises(SpecError, match="motion_maps: expected a list of"):
+        load_train_config(_spec(tmp_path, motion_maps={"alpha": "other.pt"}))
