@@ -218,10 +218,10 @@ class TrainConfig:
     motion_maps: dict = field(default_factory=dict)
 
 
-def motion_maps_problems(raw, resolve) -> tuple[dict, list[str]]:
-    """``{sequence: weights}`` from a fusion spec's ``motion_maps`` (a list of ``{weights: name, file or list of
-    them, sequences: [names]}``: e.g. each sequence's map from a network trained without it, out of fold), with
-    weights files resolved as ``resolve`` does, and the problems found."""
+def parse_motion_maps(raw, resolve) -> tuple[dict, list[str]]:
+    """``{sequence: weights}`` and the problems found, from a fusion spec's ``motion_maps``: a list of ``{weights:
+    name, file or list of them, sequences: [names]}``, e.g. each sequence's map from a network trained without it
+    (out of fold); weights files resolved as ``resolve`` does."""
     from eponet.core.errors import MissingWeights
     from eponet.weights import resolve_weights
 
@@ -330,7 +330,7 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
                               for w in teacher["weights"]]
     motion_maps = {}
     if task == "fusion" and document.get("motion_maps") is not None:
-        motion_maps, found = motion_maps_problems(document["motion_maps"], resolve)
+        motion_maps, found = parse_motion_maps(document["motion_maps"], resolve)
         problems.extend(found)
     device = document.get("device", "auto")
     if device not in ("auto", "cpu", "cuda"):
