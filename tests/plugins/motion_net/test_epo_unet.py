@@ -162,7 +162,7 @@ def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
         saved = torch.load(builtin_weights()[name].file, map_location="cpu", weights_only=False)
         assert saved["meta"]["spec"]["geometry"]["stages"]["rigidity"]["prior_groups"] == 4
     selftrained = registry.resolve_preset("epo-st")
-    assert selftrained["motion_net"]["weights"] == "epo-davis-v5"
+    assert selftrained["motion_net"] == epo["motion_net"]  # epo's network and precision, as measured held out
     assert selftrained["rigidity"] == {"plugin": "trifocal", "prior_groups": 4}  # epo's ED (the stage's defaults)
     assert epo["rigidity"] == selftrained["rigidity"]
     fused = registry.resolve_preset("epo+")
