@@ -67,6 +67,18 @@ def _preset(name: str = "epo") -> dict:
     return {**defaults, **refiner}
 
 
+def nested(rows: dict, folds: list[list[str]], pick) -> tuple[dict[int, int], dict[str, float]]:
+    """Per fold ``i``, the setting ``pick(others)`` chooses on the other folds' sequences (``others``: their names)
+    and its J on fold ``i``'s sequences: ``({fold: setting index}, {sequence: J})``. ``rows[name]["J"][k]`` is
+    sequence ``name``'s J with setting ``k``."""
+    fold_of = {name: i for i, names in enumerate(folds) for name in names}
+    chosen, heldout_j = {}, {}
+    for i, names in enumerate(folds):
+        k = chosen[i] = pick([n for n in rows if fold_of[n] != i])
+        heldout_j.update({n: rows[n]["J"][k] for n in names})
+    return chosen, heldout_j
+
+
 def _score_sequence(job: tuple) -> dict:
     """J mean and CRF seconds per frame of one sequence for each setting of the grid."""
     import cv2
@@ -120,7 +132,6 @@ def main() -> int:
         rows = {r["name"]: r for r in pool.map(_score_sequence, jobs)}
     after = reference_ms(files, 0.5, 1)
     reference = 0.5 * (before + after)
-    fold_of = {name: i for i, names in enumerate(folds) for name in names}
     labels = [label for label, _ in grid]
     mean_j = lambda names, k: float(np.mean([rows[n]["J"][k] for n in names]))  # noqa: E731
     weights = np.array([rows[n]["frames"] for n in rows], float)
@@ -130,23 +141,21 @@ def main() -> int:
     print(f"{'setting':<26}{'J':>7}{'ms':>8}{'R':>7}")
     for k, label in enumerate(labels):
         print(f"{label:<26}{mean_j(list(rows), k):>7.3f}{cost[k]:>8.1f}{cost[k] / reference:>7.2f}")
-    chosen, heldout_j = {}, {}
-    for i, names in enumerate(folds):
-        others = [n for n in rows if fold_of[n] != i]
+    def pick(others: list[str]) -> int:
         if args.choose == "best":
-            k = max(range(len(grid)), key=lambda k: mean_j(others, k))
-        else:
-            floor = mean_j(others, 0) - args.tolerance
-            k = min((k for k in range(len(grid)) if mean_j(others, k) >= floor), key=lambda k: cost[k])
-        chosen[i] = labels[k]
-        heldout_j.update({n: rows[n]["J"][k] for n in names})
+            return max(range(len(grid)), key=lambda k: mean_j(others, k))
+        floor = mean_j(others, 0) - args.tolerance
+        return min((k for k in range(len(grid)) if mean_j(others, k) >= floor), key=lambda k: cost[k])
+
+    chosen, heldout_j = nested(rows, folds, pick)
+    chosen = {i: labels[k] for i, k in chosen.items()}
     print("chosen per fold (on the other folds): " + ", ".join(f"{i}: {c}" for i, c in chosen.items()))
-    nested = float(np.mean(list(heldout_j.values())))
-    print(f"nested: J {nested:.3f} against the preset's {mean_j(list(rows), 0):.3f} on the same frames")
+    nested_j = float(np.mean(list(heldout_j.values())))
+    print(f"nested: J {nested_j:.3f} against the preset's {mean_j(list(rows), 0):.3f} on the same frames")
     out = args.dump / f"crf-{args.grid}-sweep.json"
     out.write_text(json.dumps({"reference_ms": reference, "every": args.every, "preset": args.preset,
                                "choose": args.choose, "grid": grid, "cost_ms": cost,
-                               "sequences": rows, "chosen": chosen, "nested_J": nested}, indent=2))
+                               "sequences": rows, "chosen": chosen, "nested_J": nested_j}, indent=2))
     return 0
 
 

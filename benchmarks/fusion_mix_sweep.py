@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from crf_speed_sweep import _preset  # noqa: E402
+from crf_speed_sweep import _preset, nested  # noqa: E402
 
 EPS = 1e-3
 
@@ -83,7 +83,6 @@ def main() -> int:
              args.preset, grid) for i, names in enumerate(folds) for name in names]
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = {r["name"]: r for r in pool.map(_score_sequence, jobs)}
-    fold_of = {name: i for i, names in enumerate(folds) for name in names}
     labels = [f"{space} {a:.2f}" for a, space in grid]
     mean_j = lambda names, k: float(np.mean([rows[n]["J"][k] for n in names]))  # noqa: E731
     frames = sum(r["frames"] for r in rows.values())
@@ -91,20 +90,16 @@ def main() -> int:
     print(f"{'motion share':<16}{'J':>7}")
     for k, label in enumerate(labels):
         print(f"{label:<16}{mean_j(list(rows), k):>7.3f}")
-    chosen, heldout_j = {}, {}
-    for i, names in enumerate(folds):
-        others = [n for n in rows if fold_of[n] != i]
-        k = max(range(len(grid)), key=lambda k: mean_j(others, k))
-        chosen[i] = labels[k]
-        heldout_j.update({n: rows[n]["J"][k] for n in names})
+    chosen, heldout_j = nested(rows, folds, lambda others: max(range(len(grid)), key=lambda k: mean_j(others, k)))
+    chosen = {i: labels[k] for i, k in chosen.items()}
     print("chosen per fold (on the other folds): " + ", ".join(f"{i}: {c}" for i, c in chosen.items()))
-    nested = float(np.mean(list(heldout_j.values())))
-    print(f"nested: J {nested:.3f} against the fused map alone's {mean_j(list(rows), 0):.3f} on the same frames")
+    nested_j = float(np.mean(list(heldout_j.values())))
+    print(f"nested: J {nested_j:.3f} against the fused map alone's {mean_j(list(rows), 0):.3f} on the same frames")
     for name in sorted(rows):
         print(f"  {name:<18}" + " ".join(f"{j:.3f}" for j in rows[name]["J"]))
     out = args.fused / f"mix-{args.motion.name}.json"
     out.write_text(json.dumps({"every": args.every, "preset": args.preset, "grid": grid, "labels": labels,
-                               "sequences": rows, "chosen": chosen, "nested_J": nested}, indent=2))
+                               "sequences": rows, "chosen": chosen, "nested_J": nested_j}, indent=2))
     return 0
 
 
