@@ -7,8 +7,8 @@ machine was not quiet): OpenCV DIS ``medium`` forward + backward per frame on th
 processing size (427x240). Every figure is per frame, at one worker's settings (``--threads`` torch/OpenCV threads,
 default 1), after a warm-up batch:
 
-- ``motion_net``: two U-Nets (the ``epo+`` preset's pair; ``epo`` runs one, half the cost) on 427x240 motion
-  images, batches of 8, as the stage ran them before (each :class:`~eponet.nets.EpoUNet` in eval mode, channels-last) and as it runs them now (each as its
+- ``motion_net``: the ``epo`` preset's one U-Net (``epo-davis-v5``), then two (the ``epo+`` preset's pair) on
+  427x240 motion images, batches of 8, the pair also as the stage ran it before (each :class:`~eponet.nets.EpoUNet` in eval mode, channels-last) and as it runs them now (each as its
   :class:`~eponet.nets.InferenceUNet`), in float32 and under ``precision: bfloat16``. The motion images are
   random: a convolution's cost does not depend on the values. Also the compute floor: both networks'
   multiply-adds per frame at the rate this CPU multiplies large float32 matrices on the same threads.
@@ -80,6 +80,8 @@ def bench_motion_net(frames: int) -> dict[str, float]:
 
     figures = {"before (EpoUNet, eval)": _timed(old, frames)}
     for precision in ("float32", "bfloat16"):
+        single = EpoUNetStage(weights="epo-davis-v5", device="cpu", precision=precision)
+        figures[f"one network, the epo preset's ({precision})"] = _timed(lambda: single.predict(motion), frames)
         stage = EpoUNetStage(weights=weights, device="cpu", precision=precision)
         figures[f"now ({precision})"] = _timed(lambda: stage.predict(motion), frames)
     # the compute floor: the networks' multiply-adds at the rate of a large float32 matrix product on the same
