@@ -79,32 +79,44 @@ def nested(rows: dict, folds: list[list[str]], pick) -> tuple[dict[int, int], di
     return chosen, heldout_j
 
 
-def _score_sequence(job: tuple) -> dict:
-    """J mean and CRF seconds per frame of one sequence for each setting of the grid."""
-    import cv2
-
-    cv2.setNumThreads(1)
+def scored_frames(root: Path, name: str, every: int):
+    """``(frame, image, ground truth, void)`` of every ``every``-th scored frame of DAVIS sequence ``name`` under
+    ``root`` (480p frames, RGB uint8 ``(H, W, 3)``; masks bool ``(H, W)``), and their count first."""
     from eponet.core.io import read_image
     from eponet.evaluation.datasets import load_dataset
+
+    sequence = load_dataset("davis2016", root, sequences=[name])[name]
+    frames = list(sequence.scored)[::every]
+    yield len(frames)
+    for frame in frames:
+        yield (frame, read_image(root / "JPEGImages" / "480p" / name / f"{frame}.png"), *sequence.read_gt(frame))
+
+
+def saved_map(heldout: Path, name: str, frame: str) -> np.ndarray:
+    """A k-fold run's saved saliency map of ``frame`` of ``name`` as float64 ``(H, W)`` in [0, 1]."""
+    return cv2.imread(str(heldout / name / "saliency" / f"{frame}.png"), cv2.IMREAD_GRAYSCALE) / 255.0
+
+
+def _score_sequence(job: tuple) -> dict:
+    """J mean and CRF seconds per frame of one sequence for each setting of the grid."""
+    cv2.setNumThreads(1)
     from eponet.evaluation.metrics import db_eval_iou
     from eponet.plugins.refiner.densecrf import densecrf_mask
 
     root, heldout, name, every, preset_name, grid = job
     preset = _preset(preset_name)
-    sequence = load_dataset("davis2016", root, sequences=[name])[name]
-    frames = list(sequence.scored)[::every]
+    frames = scored_frames(root, name, every)
+    count = next(frames)
     scores, seconds = [[] for _ in grid], [0.0 for _ in grid]
-    for frame in frames:
-        image = read_image(root / "JPEGImages" / "480p" / name / f"{frame}.png")
-        probability = cv2.imread(str(heldout / name / "saliency" / f"{frame}.png"), cv2.IMREAD_GRAYSCALE) / 255.0
-        gt, void = sequence.read_gt(frame)
+    for frame, image, gt, void in frames:
+        probability = saved_map(heldout, name, frame)
         for i, (_, changes) in enumerate(grid):
             tick = time.perf_counter()
             mask = densecrf_mask(image, probability, **{**preset, **changes})
             seconds[i] += time.perf_counter() - tick
             scores[i].append(db_eval_iou(mask.astype(bool), gt, void))
-    return {"name": name, "frames": len(frames), "J": [float(np.mean(s)) for s in scores],
-            "ms": [1000 * s / len(frames) for s in seconds]}
+    return {"name": name, "frames": count, "J": [float(np.mean(s)) for s in scores],
+            "ms": [1000 * s / count for s in seconds]}
 
 
 def main() -> int:

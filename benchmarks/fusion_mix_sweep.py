@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from crf_speed_sweep import _preset, nested  # noqa: E402
+from crf_speed_sweep import _preset, nested, saved_map, scored_frames  # noqa: E402
 
 EPS = 1e-3
 
@@ -33,33 +33,29 @@ def mix(fused: np.ndarray, motion: np.ndarray, share: float, space: str) -> np.n
     """The fused and motion probabilities ``(H, W)`` mixed with ``share`` of the motion map, in ``space``."""
     if space == "prob":
         return (1 - share) * fused + share * motion
-    logit = lambda p: np.log(np.clip(p, EPS, 1 - EPS) / (1 - np.clip(p, EPS, 1 - EPS)))  # noqa: E731
-    return 1 / (1 + np.exp(-((1 - share) * logit(fused) + share * logit(motion))))
+    fused, motion = np.clip(fused, EPS, 1 - EPS), np.clip(motion, EPS, 1 - EPS)
+    logits = (1 - share) * np.log(fused / (1 - fused)) + share * np.log(motion / (1 - motion))
+    return 1 / (1 + np.exp(-logits))
 
 
 def _score_sequence(job: tuple) -> dict:
     import cv2
 
     cv2.setNumThreads(1)
-    from eponet.core.io import read_image
-    from eponet.evaluation.datasets import load_dataset
     from eponet.evaluation.metrics import db_eval_iou
     from eponet.plugins.refiner.densecrf import densecrf_mask
 
     root, fused_dir, motion_dir, name, every, preset_name, grid = job
     preset = _preset(preset_name)
-    sequence = load_dataset("davis2016", root, sequences=[name])[name]
-    frames = list(sequence.scored)[::every]
+    frames = scored_frames(root, name, every)
+    count = next(frames)
     scores = [[] for _ in grid]
-    for frame in frames:
-        image = read_image(root / "JPEGImages" / "480p" / name / f"{frame}.png")
-        read = lambda d: cv2.imread(str(d / name / "saliency" / f"{frame}.png"), cv2.IMREAD_GRAYSCALE) / 255.0  # noqa: E731
-        fused, motion = read(fused_dir), read(motion_dir)
-        gt, void = sequence.read_gt(frame)
+    for frame, image, gt, void in frames:
+        fused, motion = saved_map(fused_dir, name, frame), saved_map(motion_dir, name, frame)
         for i, (share, space) in enumerate(grid):
             mask = densecrf_mask(image, mix(fused, motion, share, space).astype(np.float32), **preset)
             scores[i].append(db_eval_iou(mask.astype(bool), gt, void))
-    return {"name": name, "frames": len(frames), "J": [float(np.mean(s)) for s in scores]}
+    return {"name": name, "frames": count, "J": [float(np.mean(s)) for s in scores]}
 
 
 def main() -> int:
