@@ -230,7 +230,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             flow: dict | None = None, motion_net: dict | None = None, recipe_model: dict | None = None,
             teacher: Path | None = None, teacher_seeds: tuple[int, ...] = (0, 1), teacher_share: float = 0.5,
             recipe_data: list[dict] | None = None, recipe_phases: list[dict] | None = None,
-            fusion_maps: str = "own") -> dict[str, dict]:
+            fusion_maps: str = "own", appearance: dict | None = None, fusion_seed: int = 0) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
@@ -250,7 +250,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     sequences (maps of sequences that network was trained on); ``out-of-fold``, each of them from the network of the
     fold that held it out (``motion_maps`` of the fusion recipe: maps as unseen video gets them, as stacking asks;
     but those networks were trained on fold ``i``'s sequences, so the figures are not fully held out: a scouting
-    measure, not a figure of record)."""
+    measure, not a figure of record). ``appearance``: the appearance stage (``plugin`` and settings) the
+    held-out runs use and, with ``plus``, the fusions learn on; ``fusion_seed``: the fusions' training seed."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
@@ -282,6 +283,9 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         def fusion_recipe():
             doc = fusion_recipe_without(split[i], nets(i))
             doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})  # the ED the networks learnt on
+            if appearance:
+                doc["appearance"] = {**doc["appearance"], **appearance}
+            doc["seed"] = fusion_seed
             if fusion_maps == "out-of-fold":
                 doc["motion_maps"] = [{"weights": [str(path.resolve()) for path in nets(j)], "sequences": split[j]}
                                       for j in range(len(split)) if j != i]
@@ -329,6 +333,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             stages["flow"] = {"plugin": "dis", **flow}
         if crf is not None:
             stages["refiner"] = crf
+        if appearance:
+            stages["appearance"] = appearance
         if plus:
             stages["fusion"] = {"plugin": "convgru", "weights": str(out / f"fold{i}" / "fusion" / "weights.pt"),
                                 **(fusion or {})}
@@ -399,6 +405,10 @@ def main(argv=None) -> int:
                         "self-training), to measure how far the figures move by chance")
     parser.add_argument("--save", default="masks",
                         help="epo: comma-separated outputs of the held-out runs (output.save), e.g. masks,saliency,ed")
+    parser.add_argument("--appearance", nargs="*", default=[],
+                        help="epo, epo+: plugin=NAME and key=value settings of the appearance stage the held-out "
+                             "runs use (and, for epo+, the fusions learn on), e.g. plugin=efficientnet_lite2")
+    parser.add_argument("--fusion-seed", type=int, default=0, help="epo+: the fusions' training seed")
     parser.add_argument("--fusion-maps", choices=("own", "out-of-fold"), default="own",
                         help="epo+: the maps each fold's fusion learns on: its own network's (trained on those "
                         "sequences) or, for each sequence, the network of the fold that held it out (every fold's "
@@ -434,6 +444,7 @@ def main(argv=None) -> int:
         meta = {"rigidity": rigidity}
     else:
         fusion = key_values(args.fusion)
+        appearance = key_values(args.appearance)
         plus = args.what == "epo+"
         preset = "epo+" if plus else args.preset
         recipe_rigidity = key_values(args.recipe_rigidity)
@@ -445,7 +456,7 @@ def main(argv=None) -> int:
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
                                args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share,
-                               recipe_data, recipe_phases, args.fusion_maps)
+                               recipe_data, recipe_phases, args.fusion_maps, appearance, args.fusion_seed)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -470,6 +481,10 @@ def main(argv=None) -> int:
             meta["fusion_maps"] = args.fusion_maps
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)
             meta.update(preset=preset, fusion=fusion)
+        if appearance:  # (kept out of the default's record: earlier reports still merge)
+            meta["appearance"] = appearance
+        if args.fusion_seed:  # (kept out of the default's record: earlier reports still merge)
+            meta["fusion_seed"] = args.fusion_seed
     if args.seed:  # (kept out of the default's record: earlier reports still merge)
         meta["seed"] = args.seed
     if trajectories:  # (kept out of the default's record: earlier reports still merge)

@@ -31,6 +31,11 @@ class StageSpec:
     #: Optional semantic check of the validated parameters (e.g. that a weights file exists), called while the
     #: spec is validated, before anything runs; returns problems as ``"<param>: <what is wrong>"`` strings.
     check: Callable[[dict], list[str]] | None = None
+    #: Optional check of the validated parameters against the composition, called once every stage of the spec
+    #: is validated (and only if ``check`` found nothing): ``check_stages(params, stages)`` with ``stages`` the
+    #: spec's other stages, ``{kind: (plugin name, validated parameters)}``; returns problems as ``check`` does
+    #: (e.g. a fusion's weights trained on another appearance stage's features).
+    check_stages: Callable[[dict, dict[str, tuple[str, dict]]], list[str]] | None = None
     #: Filled in by the registry: the distribution (package) that provided the plugin.
     package: str = field(default="eponet", compare=False)
 

@@ -321,6 +321,7 @@ def parse_spec(
         merged[kind] = {**base, **config}
 
     stages: dict[str, StageConfig] = {}
+    unchecked: set[str] = set()  # stages whose own parameters have problems: not checked against the others
     for kind in KINDS:
         if kind not in merged:
             continue
@@ -341,9 +342,17 @@ def parse_spec(
             if param.type in ("path", "weights") and params.get(param.name) is not None:
                 params[param.name] = _resolve_files(param, params[param.name], partial(resolve_path, f"{path}.{param.name}"),
                                                     registry.builtin_weights)
+        checked = []
         if spec.check is not None and not param_problems:
-            problems.extend(f"{path}.{problem}" for problem in spec.check(params))
+            checked = spec.check(params)
+            problems.extend(f"{path}.{problem}" for problem in checked)
         stages[kind] = StageConfig(kind, spec, params)
+        if param_problems or checked:
+            unchecked.add(kind)
+    for kind, stage in stages.items():  # each stage against the others (e.g. a fusion and its appearance)
+        if stage.spec.check_stages is not None and kind not in unchecked:
+            others = {k: (s.plugin, s.params) for k, s in stages.items() if k != kind}
+            problems.extend(f"stages.{kind}.{problem}" for problem in stage.spec.check_stages(stage.params, others))
 
     # the composition must be complete (the stage graph says what each stage and output needs)
     present = set(merged)

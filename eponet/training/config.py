@@ -147,7 +147,7 @@ _FUSION_DROPOUT = (
     Param("sequences", "list", None, "only these sequences (the paper: fast motion, dynamic background); "
           "null: all", nullable=True),
 )
-_FUSION_STAGES = {"motion_net": "epo_unet", "appearance": "efficientnet_lite0"}
+_FUSION_STAGES = {"motion_net": "epo_unet", "appearance": "efficientnet_lite2"}  # the epo+ preset's
 _SCHEMAS = {
     "motion_net": {"model": _MODEL, "optimizer": _OPTIMIZER, "input_dropout": _DROPOUT, "augment": _MOTION_AUGMENT},
     "fusion": {"model": _FUSION_MODEL, "optimizer": _FUSION_OPTIMIZER, "input_dropout": _FUSION_DROPOUT,

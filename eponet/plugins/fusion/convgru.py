@@ -48,7 +48,7 @@ class ConvGRUStage:
     with that share (:func:`eponet.fusion.selftrain.self_trained_probability`): the ``selftrain`` fusion's
     test-time adaptation, seeded by the fusion instead of the motion map."""
 
-    def __init__(self, *, weights: str = "epo-plus-davis", sha256: str | None = None, window: int | None = 32,
+    def __init__(self, *, weights: str = "epo-plus-davis-lite2", sha256: str | None = None, window: int | None = 32,
                  overlap: int = 8, blend: str = "centre", device: str = "auto", selftrain: float = 0.0,
                  selftrain_foreground: float = 0.9, selftrain_background: float = 0.05, selftrain_samples: int = 60000,
                  selftrain_l2: float = 1e-3, selftrain_foreground_share: float = 0.0,
@@ -96,6 +96,28 @@ def _check(params: dict) -> list[str]:
     return problems + window_problems(params) + threshold_problems(params, "selftrain_")
 
 
+def _check_stages(params: dict, stages: dict) -> list[str]:
+    """The weights' appearance stage (recorded by ``eponet train``) must be the spec's: a fusion reads the
+    features it was trained on (another backbone's have other channels, or the same count meaning other things)."""
+    import torch
+
+    if "appearance" not in stages:
+        return []
+    path, _ = resolve_weights(params["weights"], sha256=params.get("sha256"), kind="fusion")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # (load_fusion reports an unreadable file when the stage is built)
+        return []
+    trained = (checkpoint.get("meta") or {}).get("appearance") or {}
+    used = stages["appearance"][0]
+    if trained.get("plugin") and trained["plugin"] != used:
+        channels = checkpoint.get("config", {}).get("appearance_channels")
+        return [f"weights: {params['weights']!r} was trained on {trained['plugin']} features ({channels} channels), "
+                f"not on stages.appearance's {used}: set stages.appearance.plugin to {trained['plugin']} or train a "
+                f"fusion on {used}"]
+    return []
+
+
 @hookimpl
 def eponet_stages():
     return [
@@ -104,8 +126,9 @@ def eponet_stages():
             name="convgru",
             factory=ConvGRUStage,
             params=(
-                Param("weights", "weights", "epo-plus-davis", "built-in weights name or a weights file (.pt from "
-                      "eponet train with task: fusion)"),
+                Param("weights", "weights", "epo-plus-davis-lite2", "built-in weights name or a weights file (.pt from "
+                      "eponet train with task: fusion), with the appearance stage it was trained on (epo-plus-davis-lite2: "
+                      "efficientnet_lite2; epo-plus-davis: efficientnet_lite0)"),
                 Param("sha256", "str", None, "expected sha256 of a weights file (checked before loading)", nullable=True),
                 Param("window", "int", 32, "frames per inference window (memory grows with it, not with the video); "
                       "null: the whole video in one pass, as the authors' code", minimum=2, nullable=True),
@@ -124,5 +147,6 @@ def eponet_stages():
             ),
             doc="EpO+ fusion: bottleneck appearance features + motion map through a bidirectional ConvGRU",
             check=_check,
+            check_stages=_check_stages,
         )
     ]

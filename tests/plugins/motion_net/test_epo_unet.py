@@ -98,7 +98,7 @@ def test_a_spec_lists_weights_relative_to_its_folder(tmp_path):
         parse_spec(doc, base_dir=tmp_path)
 
 
-@pytest.mark.parametrize("kind, name", [("motion_net", "epo-davis"), ("fusion", "epo-plus-davis")])
+@pytest.mark.parametrize("kind, name", [("motion_net", "epo-davis"), ("fusion", "epo-plus-davis-lite2")])
 def test_a_wrong_sha256_with_a_builtin_name_is_one_spec_line(tmp_path, kind, name):
     """README: ``sha256`` is checked before loading, also with a built-in name (it was silently ignored)."""
     from eponet.core.spec import parse_spec
@@ -148,8 +148,8 @@ def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
 
 def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
     """v5 was trained on shrunk means (``prior_groups`` 4, the recipe's) and the epo and epo-st presets paint them
-    and run v5 alone (one network held out as well as the pair); epo+ keeps the v4 networks on plain means, which
-    its fusion was trained on."""
+    and run v5 alone (one network held out as well as the pair); so does epo+, whose fusion (epo-plus-davis-lite2) was
+    trained on v5's maps of the shrunk means, with GRIC and no border prior."""
 
     from eponet.core.registry import get_registry
     from eponet.weights import builtin_weights
@@ -166,8 +166,11 @@ def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
     assert selftrained["rigidity"] == {"plugin": "trifocal", "prior_groups": 4}  # epo's ED (the stage's defaults)
     assert epo["rigidity"] == selftrained["rigidity"]
     fused = registry.resolve_preset("epo+")
-    assert fused["motion_net"]["weights"] == ["epo-davis", "epo-davis-seed1"]
-    assert fused["rigidity"].get("prior_groups", 0) == 0
+    assert fused["motion_net"] == {"plugin": "epo_unet", "weights": "epo-davis-v5"}  # float32, as measured
+    assert fused["rigidity"] == {"plugin": "trifocal", "degeneracy": "gric", "border_prior": 0.0, "prior_groups": 4}
+    meta = torch.load(builtin_weights()[fused["fusion"]["weights"]].file, map_location="cpu", weights_only=True)["meta"]
+    assert meta["motion_net"]["params"]["weights"] == "epo-davis-v5"  # the maps it was trained on
+    assert meta["appearance"]["plugin"] == fused["appearance"]["plugin"] == "efficientnet_lite2"
 
 
 def test_epo_preset_on_the_embedded_demo_reaches_the_target_j(tmp_path):

