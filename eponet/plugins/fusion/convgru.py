@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import numpy as np
 
@@ -103,7 +104,11 @@ def _check_stages(params: dict, stages: dict) -> list[str]:
 
     if "appearance" not in stages:
         return []
-    path, _ = resolve_weights(params["weights"], sha256=params.get("sha256"), kind="fusion")
+    # (``_check`` has verified the file's checksum already: only its path is needed, not a second sha256)
+    from eponet.weights import builtin_weights
+
+    entry = builtin_weights().get(params["weights"])
+    path = entry.file if entry is not None else Path(params["weights"]).expanduser()
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:  # (load_fusion reports an unreadable file when the stage is built)
