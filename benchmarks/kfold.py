@@ -28,6 +28,9 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-ed-video --run ed_window=null \
         --sequences bmx-bumps,car-turn,dance-jump,hockey,paragliding,stroller
         # some sequences only, with other run settings (here the whole video's ED scale)
+    python benchmarks/kfold.py --what epo+ --weights runs/kfold-v5 --out runs/kfold-v5-plus-lite2-ens --fusion-seed 0,1 \
+        --recipe-rigidity prior_groups=4 --rigidity prior_groups=4 --appearance plugin=efficientnet_lite2
+        # two fusions per fold (training seeds 0 and 1; seed 1's in fold<i>/fusion-seed1) scored as their mean
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus-seed1 --seeds 0,1 --seed 1
         # the same networks with another RANSAC / self-training seed: how far the figures move by chance
     python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--trajectories cull_collisions=true] \
@@ -230,7 +233,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             flow: dict | None = None, motion_net: dict | None = None, recipe_model: dict | None = None,
             teacher: Path | None = None, teacher_seeds: tuple[int, ...] = (0, 1), teacher_share: float = 0.5,
             recipe_data: list[dict] | None = None, recipe_phases: list[dict] | None = None,
-            fusion_maps: str = "own", appearance: dict | None = None, fusion_seed: int = 0) -> dict[str, dict]:
+            fusion_maps: str = "own", appearance: dict | None = None, fusion_seeds: tuple[int, ...] = (0,)) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
@@ -251,7 +254,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     fold that held it out (``motion_maps`` of the fusion recipe: maps as unseen video gets them, as stacking asks;
     but those networks were trained on fold ``i``'s sequences, so the figures are not fully held out: a scouting
     measure, not a figure of record). ``appearance``: the appearance stage (``plugin`` and settings) the
-    held-out runs use and, with ``plus``, the fusions learn on; ``fusion_seed``: the fusions' training seed."""
+    held-out runs use and, with ``plus``, the fusions learn on; ``fusion_seeds``: the fusions' training seeds, one
+    fusion per seed (``out/fold<i>/fusion`` for the first, ``fusion-seed<s>`` for the others) whose mean is scored."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
@@ -279,19 +283,24 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         i, seed = job
         return train_variant(folder(i, seed), lambda: recipe(i, seed), threads, retrain=False)
 
-    def train_fusion(i):
+    def fusion_folder(i, seed):
+        return out / f"fold{i}" / ("fusion" if seed == fusion_seeds[0] else f"fusion-seed{seed}")
+
+    def train_fusion(job):
+        i, seed = job
+
         def fusion_recipe():
             doc = fusion_recipe_without(split[i], nets(i))
             doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})  # the ED the networks learnt on
             if appearance:
                 doc["appearance"] = {**doc["appearance"], **appearance}
-            doc["seed"] = fusion_seed
+            doc["seed"] = seed
             if fusion_maps == "out-of-fold":
                 doc["motion_maps"] = [{"weights": [str(path.resolve()) for path in nets(j)], "sequences": split[j]}
                                       for j in range(len(split)) if j != i]
             return doc
 
-        return train_variant(out / f"fold{i}" / "fusion", fusion_recipe, threads, retrain=False)
+        return train_variant(fusion_folder(i, seed), fusion_recipe, threads, retrain=False)
 
     from eponet.core.errors import EponetError
     from eponet.training.trainer import GENERATORS
@@ -313,7 +322,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         for (i, _), s in zip(trainings, pool.map(train, trainings)):
             seconds[i] += s
         if plus:
-            for i, s in zip(which, pool.map(train_fusion, which)):
+            fusions = [(i, seed) for seed in fusion_seeds for i in which]
+            for (i, _), s in zip(fusions, pool.map(train_fusion, fusions)):
                 seconds[i] += s
     scored = {i: [n for n in split[i] if not only or n in only] for i in which}
     davis = validation_root(DAVIS, [n for i in which for n in scored[i]], out)
@@ -336,8 +346,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         if appearance:
             stages["appearance"] = appearance
         if plus:
-            stages["fusion"] = {"plugin": "convgru", "weights": str(out / f"fold{i}" / "fusion" / "weights.pt"),
-                                **(fusion or {})}
+            fused = [str(fusion_folder(i, seed) / "weights.pt") for seed in fusion_seeds]
+            stages["fusion"] = {"plugin": "convgru", "weights": fused if len(fused) > 1 else fused[0], **(fusion or {})}
         elif fusion:
             stages["fusion"] = fusion
         if not scored[i]:
@@ -408,7 +418,8 @@ def main(argv=None) -> int:
     parser.add_argument("--appearance", nargs="*", default=[],
                         help="epo, epo+: plugin=NAME and key=value settings of the appearance stage the held-out "
                              "runs use (and, for epo+, the fusions learn on), e.g. plugin=efficientnet_lite2")
-    parser.add_argument("--fusion-seed", type=int, default=0, help="epo+: the fusions' training seed")
+    parser.add_argument("--fusion-seed", default="0", help="epo+: the fusions' training seed; a comma-separated list "
+                        "trains one fusion per seed and scores their mean (fusion-seed<s>/ beside fusion/)")
     parser.add_argument("--fusion-maps", choices=("own", "out-of-fold"), default="own",
                         help="epo+: the maps each fold's fusion learns on: its own network's (trained on those "
                         "sequences) or, for each sequence, the network of the fold that held it out (every fold's "
@@ -451,12 +462,13 @@ def main(argv=None) -> int:
         recipe_model = key_values(args.recipe_model)
         run = key_values(args.run)
         seeds = tuple(int(s) for s in args.seeds.split(","))
+        fusion_seeds = tuple(int(s) for s in args.fusion_seed.split(","))
         crf = key_values(args.crf)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
                                args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share,
-                               recipe_data, recipe_phases, args.fusion_maps, appearance, args.fusion_seed)
+                               recipe_data, recipe_phases, args.fusion_maps, appearance, fusion_seeds)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -483,8 +495,8 @@ def main(argv=None) -> int:
             meta.update(preset=preset, fusion=fusion)
         if appearance:  # (kept out of the default's record: earlier reports still merge)
             meta["appearance"] = appearance
-        if args.fusion_seed:  # (kept out of the default's record: earlier reports still merge)
-            meta["fusion_seed"] = args.fusion_seed
+        if fusion_seeds != (0,):  # (kept out of the default's record: earlier reports still merge)
+            meta["fusion_seed"] = fusion_seeds[0] if len(fusion_seeds) == 1 else list(fusion_seeds)
     if args.seed:  # (kept out of the default's record: earlier reports still merge)
         meta["seed"] = args.seed
     if trajectories:  # (kept out of the default's record: earlier reports still merge)

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import yaml
 
-from eponet.core.errors import MissingWeights
+from eponet.core.errors import MissingWeights, SpecError
 
-__all__ = ["WEIGHTS_DIR", "BuiltinWeights", "builtin_weights", "sha256_of", "resolve_weights"]
+__all__ = ["WEIGHTS_DIR", "BuiltinWeights", "builtin_weights", "sha256_of", "resolve_weights", "weights_list"]
 
 WEIGHTS_DIR = Path(__file__).resolve().parent
 
@@ -74,3 +74,18 @@ def resolve_weights(name_or_path: str, *, sha256: str | None = None, kind: str |
         raise MissingWeights(f"{path}: checksum mismatch (sha256 {actual[:12]}..., expected {expected[:12]}...); "
                              "the file is corrupt or not the expected weights")
     return path, actual
+
+
+def weights_list(weights: str | list[str], sha256: str | list[str] | None) -> list[tuple[str, str | None]]:
+    """Pairs (weights, expected sha256 or None) of a stage's ``weights`` and ``sha256`` parameters, each one name or
+    a list (an ensemble); a :class:`~eponet.core.errors.SpecError` when the checksums do not pair with the files."""
+    names = weights if isinstance(weights, list) else [weights]
+    if sha256 is None or (isinstance(sha256, str) and len(names) == 1):
+        digests = [sha256] * len(names)
+    elif isinstance(sha256, list) and len(sha256) == len(names):
+        digests = sha256
+    else:
+        count = 1 if isinstance(sha256, str) else len(sha256)
+        raise SpecError(f"sha256: {count} checksum(s) for {len(names)} weights files; give one per file, in the "
+                        "same order, or none")
+    return list(zip(names, digests))

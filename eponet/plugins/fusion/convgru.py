@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 
 from eponet.core.devices import DEVICES, torch_device
-from eponet.core.errors import MissingWeights, StageError
+from eponet.core.errors import MissingWeights, SpecError, StageError
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
 from eponet.plugins.fusion import example_params, threshold_problems, window_problems
-from eponet.weights import resolve_weights
+from eponet.weights import resolve_weights, weights_list
 
 __all__ = ["ConvGRUStage", "load_fusion"]
 
@@ -47,14 +47,26 @@ class ConvGRUStage:
     ``selftrain_foreground_floor`` where fewer are; below ``selftrain_background``, and below
     ``selftrain_background_motion`` in the motion map when that is set) and mixes its probability in
     with that share (:func:`eponet.fusion.selftrain.self_trained_probability`): the ``selftrain`` fusion's
-    test-time adaptation, seeded by the fusion instead of the motion map."""
+    test-time adaptation, seeded by the fusion instead of the motion map.
 
-    def __init__(self, *, weights: str = "epo-plus-davis-lite2", sha256: str | None = None, window: int | None = 32,
+    ``weights`` may list several fusions trained on the same appearance stage (an ensemble, e.g. one recipe
+    trained with two seeds): the fused probability is the mean of theirs, before the self-training, for the cost
+    of one ConvGRU pass each."""
+
+    def __init__(self, *, weights: str | list[str] = "epo-plus-davis-lite2", sha256: str | list[str] | None = None,
+                 window: int | None = 32,
                  overlap: int = 8, blend: str = "centre", device: str = "auto", selftrain: float = 0.0,
                  selftrain_foreground: float = 0.9, selftrain_background: float = 0.05, selftrain_samples: int = 60000,
                  selftrain_l2: float = 1e-3, selftrain_foreground_share: float = 0.0,
                  selftrain_foreground_floor: float = 0.5, selftrain_background_motion: float | None = None):
-        self.model, self.sha256 = load_fusion(weights, sha256)
+        loaded = [load_fusion(name, digest) for name, digest in weights_list(weights, sha256)]
+        self.models = [model for model, _ in loaded]
+        digests = [digest for _, digest in loaded]
+        self.sha256 = digests if isinstance(weights, list) else digests[0]
+        channels = {model.appearance_channels for model in self.models}
+        if len(channels) > 1:
+            raise StageError(f"fusion convgru: the weights expect different appearance channels ({sorted(channels)}); "
+                             "an ensemble's fusions must be trained on one appearance stage")
         self.window, self.overlap, self.blend = window, overlap, blend
         self.device = torch_device(device)
         self.selftrain = dict(weight=selftrain, foreground=selftrain_foreground, background=selftrain_background,
@@ -68,19 +80,22 @@ class ConvGRUStage:
 
         from eponet.fusion import video_logits
 
-        expected = self.model.appearance_channels
+        expected = self.models[0].appearance_channels
         if features.ndim != 4 or features.shape[1] != expected:
             raise StageError(f"fusion convgru: the weights expect {expected} appearance channels, got features of "
                              f"shape {features.shape}; use the appearance stage the fusion was trained with")
-        model = self.model.to(self.device)
-        logits = video_logits(model, features, saliency, window=self.window, overlap=self.overlap, blend=self.blend,
-                              device=self.device)
-        out = np.empty(saliency.shape, np.float32)
-        with torch.inference_mode():
-            for start in range(0, len(out), 16):  # upsample a few frames at a time: bounded temporaries
-                maps = torch.from_numpy(np.ascontiguousarray(saliency[start : start + 16], np.float32)).to(self.device)
-                chunk = model.frame_logits(logits[start : start + 16].to(self.device), maps)
-                out[start : start + len(chunk)] = torch.sigmoid(chunk).cpu().numpy()
+        out = np.zeros(saliency.shape, np.float32)
+        for model in self.models:
+            model = model.to(self.device)
+            logits = video_logits(model, features, saliency, window=self.window, overlap=self.overlap,
+                                  blend=self.blend, device=self.device)
+            with torch.inference_mode():
+                for start in range(0, len(out), 16):  # upsample a few frames at a time: bounded temporaries
+                    maps = torch.from_numpy(np.ascontiguousarray(saliency[start : start + 16], np.float32))
+                    chunk = model.frame_logits(logits[start : start + 16].to(self.device), maps.to(self.device))
+                    out[start : start + len(chunk)] += torch.sigmoid(chunk).cpu().numpy()
+        if len(self.models) > 1:
+            out /= len(self.models)
         if self.selftrain["weight"] > 0:
             from eponet.fusion.selftrain import self_trained_probability
 
@@ -91,7 +106,10 @@ class ConvGRUStage:
 def _check(params: dict) -> list[str]:
     problems = []
     try:
-        resolve_weights(params["weights"], sha256=params.get("sha256"), kind="fusion")
+        for name, digest in weights_list(params["weights"], params.get("sha256")):
+            resolve_weights(name, sha256=digest, kind="fusion")
+    except SpecError as exc:
+        problems += exc.problems
     except MissingWeights as exc:
         problems.append(exc.problem)
     return problems + window_problems(params) + threshold_problems(params, "selftrain_")
@@ -104,23 +122,24 @@ def _check_stages(params: dict, stages: dict) -> list[str]:
 
     if "appearance" not in stages:
         return []
-    # (``_check`` has verified the file's checksum already: only its path is needed, not a second sha256)
+    # (``_check`` has verified the files' checksums already: only their paths are needed, not a second sha256)
     from eponet.weights import builtin_weights
 
-    entry = builtin_weights().get(params["weights"])
-    path = entry.file if entry is not None else Path(params["weights"]).expanduser()
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception:  # (load_fusion reports an unreadable file when the stage is built)
-        return []
-    trained = (checkpoint.get("meta") or {}).get("appearance") or {}
-    used = stages["appearance"][0]
-    if trained.get("plugin") and trained["plugin"] != used:
-        channels = checkpoint.get("config", {}).get("appearance_channels")
-        return [f"weights: {params['weights']!r} was trained on {trained['plugin']} features ({channels} channels), "
-                f"not on stages.appearance's {used}: set stages.appearance.plugin to {trained['plugin']} or train a "
-                f"fusion on {used}"]
-    return []
+    catalogue, used, problems = builtin_weights(), stages["appearance"][0], []
+    for name in params["weights"] if isinstance(params["weights"], list) else [params["weights"]]:
+        entry = catalogue.get(name)
+        try:
+            checkpoint = torch.load(entry.file if entry else Path(name).expanduser(), map_location="cpu",
+                                    weights_only=True)
+        except Exception:  # (load_fusion reports an unreadable file when the stage is built)
+            continue
+        trained = (checkpoint.get("meta") or {}).get("appearance") or {}
+        if trained.get("plugin") and trained["plugin"] != used:
+            channels = checkpoint.get("config", {}).get("appearance_channels")
+            problems.append(f"weights: {name!r} was trained on {trained['plugin']} features ({channels} channels), "
+                            f"not on stages.appearance's {used}: set stages.appearance.plugin to {trained['plugin']} "
+                            f"or train a fusion on {used}")
+    return problems
 
 
 @hookimpl
@@ -133,8 +152,10 @@ def eponet_stages():
             params=(
                 Param("weights", "weights", "epo-plus-davis-lite2", "built-in weights name or a weights file (.pt from "
                       "eponet train with task: fusion), with the appearance stage it was trained on (epo-plus-davis-lite2: "
-                      "efficientnet_lite2; epo-plus-davis: efficientnet_lite0)"),
-                Param("sha256", "str", None, "expected sha256 of a weights file (checked before loading)", nullable=True),
+                      "efficientnet_lite2; epo-plus-davis: efficientnet_lite0); a list of them averages the fusions' "
+                      "probabilities", many=True),
+                Param("sha256", "str", None, "expected sha256 of a weights file (checked before loading); one per file "
+                      "for a list", nullable=True, many=True),
                 Param("window", "int", 32, "frames per inference window (memory grows with it, not with the video); "
                       "null: the whole video in one pass, as the authors' code", minimum=2, nullable=True),
                 Param("overlap", "int", 8, "frames shared by consecutive windows", minimum=0),

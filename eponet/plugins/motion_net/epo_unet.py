@@ -12,7 +12,7 @@ from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.motion import mirror_motion_images
 from eponet.core.params import Param
 from eponet.core.progress import track
-from eponet.weights import resolve_weights
+from eponet.weights import resolve_weights, weights_list
 
 __all__ = ["EpoUNetStage", "load_unet"]
 
@@ -35,20 +35,6 @@ def load_unet(weights: str, sha256: str | None = None):
     return model.eval(), digest
 
 
-def _weights_list(weights: str | list[str], sha256: str | list[str] | None) -> list[tuple[str, str | None]]:
-    """Pairs (weights, expected sha256 or None) of a stage's ``weights`` and ``sha256`` parameters."""
-    names = weights if isinstance(weights, list) else [weights]
-    if sha256 is None or (isinstance(sha256, str) and len(names) == 1):
-        digests = [sha256] * len(names)
-    elif isinstance(sha256, list) and len(sha256) == len(names):
-        digests = sha256
-    else:
-        count = 1 if isinstance(sha256, str) else len(sha256)
-        raise SpecError(f"sha256: {count} checksum(s) for {len(names)} weights files; give one per file, in the "
-                        "same order, or none")
-    return list(zip(names, digests))
-
-
 class EpoUNetStage:
     """Per-frame inference of the U-Net, in batches, on CPU or GPU.
 
@@ -67,7 +53,7 @@ class EpoUNetStage:
                  batch_size: int = 8, device: str = "auto", flip: bool = False, precision: str = "float32"):
         from eponet.nets import InferenceUNet
 
-        loaded = [load_unet(name, digest) for name, digest in _weights_list(weights, sha256)]
+        loaded = [load_unet(name, digest) for name, digest in weights_list(weights, sha256)]
         self.models = [InferenceUNet(model) for model, _ in loaded]
         digests = [digest for _, digest in loaded]
         self.sha256 = digests if isinstance(weights, list) else digests[0]
@@ -112,7 +98,7 @@ class EpoUNetStage:
 
 def _check(params: dict) -> list[str]:
     try:
-        for name, digest in _weights_list(params["weights"], params.get("sha256")):
+        for name, digest in weights_list(params["weights"], params.get("sha256")):
             resolve_weights(name, sha256=digest, kind="motion_net")
     except SpecError as exc:
         return exc.problems

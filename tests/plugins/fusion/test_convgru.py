@@ -154,10 +154,49 @@ def test_stage_fuses_at_the_saliency_size_and_checks_channels(tmp_path):
         residual.head_forward.weight.normal_()
     _save_weights(tmp_path / "residual.pt", residual)
     loaded = ConvGRUStage(weights=str(tmp_path / "residual.pt"), window=None, device="cpu")
-    assert loaded.model.config["motion_residual"] and loaded.model.motion_weight == pytest.approx(0.7)
+    assert loaded.models[0].config["motion_residual"] and loaded.models[0].motion_weight == pytest.approx(0.7)
     with torch.no_grad():
         expected = torch.sigmoid(residual.frame_logits(residual(features[:1], saliency[:1])[0], saliency[0]))
     np.testing.assert_allclose(loaded.fuse(features[0].numpy(), saliency[0].numpy()), expected.numpy(), atol=1e-5)
+
+
+def test_a_list_of_weights_averages_the_fusions_probabilities_before_selftraining(tmp_path):
+    """An ensemble: the mean of each fusion's probability (the self-training then sees that mean); one name in a
+    list is the stage with that name; checksums pair with the files in order; fusions on different appearance
+    channels cannot be averaged."""
+    from eponet.core.errors import SpecError
+    from eponet.weights import sha256_of
+
+    for seed in (0, 1):
+        _save_weights(tmp_path / f"fusion{seed}.pt", _model(seed=seed))
+    paths = [str(tmp_path / f"fusion{seed}.pt") for seed in (0, 1)]
+    features, saliency = _inputs(frames=5)
+    f, s = features[0].numpy(), saliency[0].numpy()
+    alone = [ConvGRUStage(weights=p, window=None, device="cpu").fuse(f, s) for p in paths]
+    assert np.abs(alone[0] - alone[1]).max() > 0.01  # two different networks
+    pair = ConvGRUStage(weights=paths, sha256=[sha256_of(p) for p in paths], window=None, device="cpu")
+    assert pair.sha256 == [sha256_of(p) for p in paths]
+    np.testing.assert_allclose(pair.fuse(f, s), (alone[0] + alone[1]) / 2, atol=1e-6)
+    np.testing.assert_array_equal(ConvGRUStage(weights=paths[:1], window=None, device="cpu").fuse(f, s), alone[0])
+    mixed = ConvGRUStage(weights=paths, window=None, device="cpu", selftrain=0.5)
+    from eponet.fusion.selftrain import self_trained_probability
+
+    np.testing.assert_allclose(mixed.fuse(f, s), self_trained_probability(f, (alone[0] + alone[1]) / 2, motion=s,
+                                                                          **mixed.selftrain), atol=1e-6)
+    with pytest.raises(MissingWeights, match="checksum mismatch"):
+        ConvGRUStage(weights=paths, sha256=[sha256_of(paths[0]), "0" * 64])
+    with pytest.raises(SpecError, match="1 checksum\\(s\\) for 2 weights files"):
+        ConvGRUStage(weights=paths, sha256=sha256_of(paths[0]))
+    _save_weights(tmp_path / "other.pt", _model(channels=4))
+    with pytest.raises(StageError, match="different appearance channels \\(\\[4, 6\\]\\)"):
+        ConvGRUStage(weights=[paths[0], str(tmp_path / "other.pt")])
+    from eponet.core.registry import get_registry
+
+    spec = get_registry().get("fusion", "convgru")
+    params = {p.name: p.default for p in spec.params}
+    assert spec.check({**params, "weights": paths}) == []
+    assert spec.check({**params, "weights": paths, "sha256": ["0" * 64]}) == [
+        "sha256: 1 checksum(s) for 2 weights files; give one per file, in the same order, or none"]
 
 
 def test_selftrain_mixes_an_appearance_classifier_fitted_on_the_fused_map(tmp_path):
@@ -212,6 +251,13 @@ def test_a_fusion_with_another_appearance_stage_than_its_weights_is_a_spec_error
         "stages.appearance's none: set stages.appearance.plugin to efficientnet_lite0 or train a fusion on none"]
     doc["stages"]["appearance"] = {"plugin": "efficientnet_lite0"}
     assert parse_spec(doc).stages["fusion"].params["weights"] == "epo-plus-davis"
+    doc["stages"]["fusion"]["weights"] = ["epo-plus-davis", "epo-plus-davis-lite2"]  # every member is checked
+    with pytest.raises(SpecError) as caught:
+        parse_spec(doc)
+    assert caught.value.problems == [
+        "stages.fusion.weights: 'epo-plus-davis-lite2' was trained on efficientnet_lite2 features (520 channels), not "
+        "on stages.appearance's efficientnet_lite0: set stages.appearance.plugin to efficientnet_lite2 or train a "
+        "fusion on efficientnet_lite0"]
 
 
 def test_shipped_fusion_weights_match_their_catalogue_checksum_and_stay_small():
@@ -221,8 +267,8 @@ def test_shipped_fusion_weights_match_their_catalogue_checksum_and_stay_small():
     assert_shipped_weights("epo-plus-davis-v1", "fusion")
     assert_shipped_weights("epo-plus-davis-lite2", "fusion")
     stage = ConvGRUStage()  # the default loads the built-in weights: the epo+ preset's, on Lite2 features
-    assert stage.model.appearance_channels == 520 and stage.model.config["motion_residual"]
-    assert ConvGRUStage(weights="epo-plus-davis").model.appearance_channels == 472  # Lite0's
+    assert stage.models[0].appearance_channels == 520 and stage.models[0].config["motion_residual"]
+    assert ConvGRUStage(weights="epo-plus-davis").models[0].appearance_channels == 472  # Lite0's
 
 
 def test_missing_builtin_weights_is_a_clear_error(tmp_path):
