@@ -241,6 +241,15 @@ def _trajectories(value, frames, shape, _):
 
 
 def _rigidity(value, frames, shape, trajectories):
+    if isinstance(value, tuple):  # score_groups: (sums, counts, records) of a window's trajectories
+        if len(value) != 3:
+            return _type(value, "(sums, counts, records) from score_groups")
+        sums, counts, records = value
+        if not isinstance(records, list) or not all(isinstance(r, dict) and isinstance(r.get("frames"), list)
+                                                    for r in records):
+            return "records that are not a list of dicts with frames, expected one per frame group"
+        return (_array("sums", sums, [trajectories], np.float64, low=0.0, finite=True)
+                or _array("counts", counts, [trajectories], np.int32, low=0))
     if not isinstance(value, RigidityResult):
         return _type(value, "a RigidityResult")
     if value.per_trajectory is not None:

@@ -78,7 +78,14 @@ class RigidityModel(Protocol):
         then calls it once per video and passes the object to every window as ``score(..., history=h,
         track_ids=ids)`` (``ids``: int64 ``(T,)``, the window's trajectories' global ids, ascending), and calls
         ``h.keep(alive_ids)`` when trajectories end, so that windows see what a whole-video call would. The
-        history is checkpointed with the trajectories' state when its attributes are arrays and plain values."""
+        history is checkpointed with the trajectories' state when its attributes are arrays and plain values.
+
+        A stage may also have ``score_groups(trajectories, rng, **same keywords)`` returning ``(sums, counts,
+        triplets)``: each trajectory's summed distance (pixels) and number of scored groups over the window's
+        groups, and the records. The loop then calls it instead of ``score`` and accumulates the totals
+        directly: no flow is stacked and no maps are painted for a window, and ``trajectories.labels`` is not
+        filled (a read-only view of -1 with the labels' shape; the loop paints from its own records). The
+        built-in stages have it."""
 
 
 @runtime_checkable

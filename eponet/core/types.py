@@ -228,9 +228,11 @@ def point_words(points: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(points, dtype=np.float32).view(np.uint64)[:, 0]
 
 
-def assemble_trajectories(frames: list[TrackFrame]) -> tuple[Trajectories, np.ndarray]:
+def assemble_trajectories(frames: list[TrackFrame], *, labels: bool = True) -> tuple[Trajectories, np.ndarray]:
     """The :class:`Trajectories` of consecutive stream frames (``frames[0].t`` becomes frame 0), and the
-    global id of each of its trajectories, int64 ``(T,)`` ascending.
+    global id of each of its trajectories, int64 ``(T,)`` ascending. ``labels=False`` leaves the labels out:
+    a read-only ``(F, H, W)`` view of -1 that has their shape only (for a caller that paints from the frames'
+    own labels; a fifth of the time).
 
     A trajectory present in several of the frames is one trajectory (it lives on one contiguous interval);
     one that started before ``frames[0]`` starts at frame 0 here, one that lives on past the last frame ends
@@ -242,6 +244,8 @@ def assemble_trajectories(frames: list[TrackFrame]) -> tuple[Trajectories, np.nd
     >>> tracks, ids = assemble_trajectories([a, b])
     >>> ids.tolist(), tracks.start.tolist(), tracks.length.tolist(), tracks.labels.tolist()
     ([0, 1, 2], [0, 0, 1], [1, 2, 1], [[[0, 1]], [[2, 1]]])
+    >>> assemble_trajectories([a, b], labels=False)[0].labels.tolist()  # the shape only
+    [[[-1, -1]], [[-1, -1]]]
     """
     if not frames:
         raise ValueError("assemble_trajectories: no frames")
@@ -264,8 +268,13 @@ def assemble_trajectories(frames: list[TrackFrame]) -> tuple[Trajectories, np.nd
     np.cumsum(length, out=offsets[1:])
     positions = np.empty((int(offsets[-1]), 2), np.float32)
     words = point_words(positions)  # (a view: what is written to it lands in positions)
-    labels = np.empty((len(frames),) + frames[0].labels.shape, np.int32)
+    first = offsets[:-1] - start  # a trajectory's point of frame k is at first + k
+    shape = (len(frames),) + frames[0].labels.shape
+    table = np.empty(shape, np.int32) if labels else np.broadcast_to(np.int32(-1), shape)
     for k, (frame, loc) in enumerate(zip(frames, local)):
-        words[offsets[loc] + (k - start[loc])] = point_words(frame.positions)
-        labels[k] = index.positions(frame.labels)  # (a table lookup; a binary search per pixel cost 3x more)
-    return Trajectories(start=start, length=length, offsets=offsets, positions=positions, labels=labels), ids
+        at = first[loc]
+        at += k
+        words[at] = point_words(frame.positions)
+        if labels:
+            table[k] = index.positions(frame.labels)  # (a table lookup; a binary search per pixel cost 3x more)
+    return Trajectories(start=start, length=length, offsets=offsets, positions=positions, labels=table), ids

@@ -144,6 +144,13 @@ def homography_triplet_error_sq(
     return (transfer_error_sq(h21, x1, x2) + transfer_error_sq(h31, x1, x3) + transfer_error_sq(h32, x2, x3)) / 3.0
 
 
+#: Points per block of the per-point distance kernels (:func:`homography_triplet_distance`,
+#: :func:`~eponet.geometry.trifocal.triplet_epipolar_distance`): their dozen temporaries of this many float32
+#: stay in a core's cache, where at a 854x480 triplet's 430 000 points every pass went to memory (about twice
+#: the time; the values are the same, element by element).
+BLOCK = 1 << 15
+
+
 def _columns(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Contiguous (x, y) columns, float32 for float32 input (half the memory traffic), else float64."""
     x = np.asarray(x)
@@ -193,11 +200,16 @@ def homography_triplet_distance(
     array (N,)
     """
     h32 = h31 @ np.linalg.inv(h21)
-    c1, c2, c3 = _columns(x1), _columns(x2), _columns(x3)
-    total = np.zeros(len(c1[0]), c1[0].dtype)
-    buf = [np.empty_like(total) for _ in range(4)]
-    for h, a, b in ((h21, c1, c2), (h31, c1, c3), (h32, c2, c3)):
-        _transfer_distance(h, a, b, total, buf)
-        _transfer_distance(np.linalg.inv(h), b, a, total, buf)
+    transfers = [(h, a, b) for h0, a, b in ((h21, 0, 1), (h31, 0, 2), (h32, 1, 2))
+                 for h, a, b in ((h0, a, b), (np.linalg.inv(h0), b, a))]
+    points = [np.asarray(x) for x in (x1, x2, x3)]
+    dtype = np.float32 if points[0].dtype == np.float32 else np.float64
+    total = np.zeros(len(points[0]), dtype)
+    buf = [np.empty(min(len(total), BLOCK), dtype) for _ in range(4)]
+    for start in range(0, len(total), BLOCK):
+        cols = [_columns(x[start : start + BLOCK]) for x in points]
+        part = total[start : start + BLOCK]
+        for h, a, b in transfers:
+            _transfer_distance(h, cols[a], cols[b], part, [x[: len(part)] for x in buf])
     total[np.isnan(total)] = np.inf  # a point mapped to infinity
     return total

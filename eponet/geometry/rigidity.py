@@ -161,6 +161,21 @@ class RigidityStage(ABC):
         the trajectories.
         """
         check_rigidity_inputs(trajectories, flow, self.views)
+        sums, counts, infos = self._score_groups(trajectories, rng, history, track_ids)
+        per_trajectory, ed = ed_maps_from_scores(trajectories, sums, counts, prior_groups=self.prior_groups)
+        return RigidityResult(ed=ed, per_trajectory=per_trajectory, triplets=infos)
+
+    def score_groups(self, trajectories: Trajectories, rng: np.random.Generator, *,
+                     history: SamplingHistory | None = None,
+                     track_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+        """What :meth:`score` computes before painting: every trajectory's summed distance float64 ``(T,)`` in
+        pixels, its number of scored groups int32 ``(T,)`` and one record per group (``frames`` window-local,
+        ``model``, diagnostics). The run loop accumulates these across its windows and paints each frame once
+        from the totals, so it calls this instead of :meth:`score` (no maps, no flow)."""
+        check_rigidity_inputs(trajectories, None, self.views)
+        return self._score_groups(trajectories, rng, history, track_ids)
+
+    def _score_groups(self, trajectories, rng, history, track_ids):
         groups = frame_groups(trajectories.num_frames, self.views, self.stride)
         if groups and groups[0][1] - groups[0][0] != self.stride:
             log.warning("video of %d frames is too short for stride %d; using %d",
@@ -171,9 +186,7 @@ class RigidityStage(ABC):
         def estimate(points, generator):
             return self.estimate(points, generator, frame_size)
 
-        sums, counts, infos = score_frame_groups(
+        return score_frame_groups(
             trajectories, groups, estimate, rng, max_points=self.max_points, sampling=self.sampling,
             border=self.border_prior, history=history, track_ids=track_ids,
         )
-        per_trajectory, ed = ed_maps_from_scores(trajectories, sums, counts, prior_groups=self.prior_groups)
-        return RigidityResult(ed=ed, per_trajectory=per_trajectory, triplets=infos)

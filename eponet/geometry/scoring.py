@@ -140,6 +140,21 @@ class SamplingHistory:
         self.ids, self.sums, self.counts = self.ids[mask], self.sums[mask], self.counts[mask]
 
 
+def largest(keys: np.ndarray, k: int) -> np.ndarray:
+    """Indices (ascending, int64) of the ``k`` largest of ``keys`` (float (N,), ``k < N``): the set
+    ``np.argpartition(-keys, k)[:k]`` gives when no two keys tie. Every 64th key places a threshold that about
+    ``2 k`` keys exceed, and the exact selection runs on those only (a full one when fewer than ``k`` do):
+    at a 854x480 triplet's 430 000 keys and ``k = 10000``, a fifth of the time of selecting among all."""
+    if len(keys) > 32 * k:
+        probe = keys[::64]
+        m = 2 * k * len(probe) // len(keys) + 1
+        threshold = np.partition(probe, len(probe) - m)[len(probe) - m]
+        above = np.flatnonzero(keys >= threshold)
+        if len(above) > k:
+            return np.sort(above[np.argpartition(-keys[above], k)[:k]])
+    return np.sort(np.argpartition(-keys, k)[:k])
+
+
 def score_frame_groups(
     trajectories: Trajectories,
     groups: list[tuple[int, ...]],
@@ -229,7 +244,7 @@ def score_frame_groups(
                 if grid is not None:
                     weight = weight * area_weight(pts[0], grid)
                 keys = np.log(rng.random(len(ids))) / weight  # log of u^(1/w): larger is more likely
-                pick = np.sort(np.argpartition(-keys, max_points)[:max_points])
+                pick = largest(keys, max_points)
             else:
                 pick = np.sort(rng.choice(len(ids), max_points, replace=False))
             sample = [p[pick].astype(np.float64) for p in pts]

@@ -232,10 +232,17 @@ def alive_in_frames(
 
 def trajectory_positions(trajectories: Trajectories, ids: np.ndarray, frame: int | tuple) -> np.ndarray | list:
     """Positions float32 (N, 2) of trajectories ``ids`` (all alive at ``frame``) in that frame; for a tuple
-    of frames, the list of their position arrays."""
+    of frames, the list of their position arrays (views into one (N, len(frame), 2) array: a trajectory's
+    points in nearby frames are neighbours in memory, so one gather of all of them costs about what one
+    frame's alone does)."""
     base = trajectories.offsets[ids] - trajectories.start[ids]
     if isinstance(frame, tuple):
-        return [_take_rows(trajectories.positions, base + f) for f in frame]
+        index = np.empty((len(base), len(frame)), np.int64)
+        for i, f in enumerate(frame):
+            np.add(base, f, out=index[:, i])
+        points = point_words(trajectories.positions).take(index.ravel()).view(np.float32)
+        points = points.reshape(len(base), len(frame), 2)
+        return [points[:, i] for i in range(len(frame))]
     return _take_rows(trajectories.positions, base + frame)
 
 

@@ -25,7 +25,7 @@ from .epipolar import (
     sampson_error,
     skew,
 )
-from .homography import _basis, _columns
+from .homography import BLOCK, _basis, _columns
 from .normalise import hartley_normalisation
 
 __all__ = [
@@ -427,32 +427,39 @@ def triplet_epipolar_distance(
     -------
     array (N,)
     """
-    cols = [_columns(x) for x in (x1, x2, x3)]
-    n = len(x1)
-    dtype = cols[0][0].dtype
+    points = [np.asarray(x) for x in (x1, x2, x3)]
+    dtype = np.float32 if points[0].dtype == np.float32 else np.float64
+    n = len(points[0])
     total = np.zeros(n, dtype)
-    # written with preallocated buffers: this runs on every trajectory of every triplet, and fresh
-    # temporaries of this size cost a page fault per 4 kB
-    l0, l1, alg, tmp, acc = (np.empty(n, dtype) for _ in range(5))
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for f, (ax, ay), (bx, by) in ((f21, cols[0], cols[1]), (f31, cols[0], cols[2]), (f32, cols[1], cols[2])):
-            (f00, f01, f02), (f10, f11, f12), (f20, f21_, f22) = (map(float, r) for r in np.asarray(f, np.float64))
-            # the line l = F x_a (in view b) and the algebraic residual x_b^T F x_a = (l0 bx + l1 by) + l2,
-            # summed in this order so that it is exactly 0 for [a]x F's and static points
-            _affine(ax, ay, f00, f01, f02, l0, tmp)
-            _affine(ax, ay, f10, f11, f12, l1, tmp)
-            _affine(ax, ay, f20, f21_, f22, alg, tmp)
-            np.multiply(l0, bx, out=acc)
-            np.multiply(l1, by, out=tmp)
-            acc += tmp
-            np.add(acc, alg, out=alg)
-            np.abs(alg, out=alg)
-            # d(x_b, F x_a) = |alg| / |(l0, l1)|
-            _add_ratio(total, alg, l0, l1)
-            # d(x_a, F^T x_b) = |alg| / |(m0, m1)| with m = F^T x_b
-            _affine(bx, by, f00, f10, f20, l0, tmp)
-            _affine(bx, by, f01, f11, f21_, l1, tmp)
-            _add_ratio(total, alg, l0, l1)
+    mats = [([float(v) for v in np.asarray(f, np.float64).ravel()], a, b)
+            for f, a, b in ((f21, 0, 1), (f31, 0, 2), (f32, 1, 2))]
+    # in blocks of BLOCK points, with preallocated buffers: this runs on every trajectory of every triplet,
+    # fresh temporaries of this size cost a page fault per 4 kB, and a block's stay in the cache
+    bufs = [np.empty(min(n, BLOCK), dtype) for _ in range(5)]
+    for start in range(0, n, BLOCK):
+        cols = [_columns(x[start : start + BLOCK]) for x in points]
+        part = total[start : start + BLOCK]
+        l0, l1, alg, tmp, acc = (b[: len(part)] for b in bufs)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            for f, a, b in mats:
+                (ax, ay), (bx, by) = cols[a], cols[b]
+                f00, f01, f02, f10, f11, f12, f20, f21_, f22 = f
+                # the line l = F x_a (in view b) and the algebraic residual x_b^T F x_a = (l0 bx + l1 by) + l2,
+                # summed in this order so that it is exactly 0 for [a]x F's and static points
+                _affine(ax, ay, f00, f01, f02, l0, tmp)
+                _affine(ax, ay, f10, f11, f12, l1, tmp)
+                _affine(ax, ay, f20, f21_, f22, alg, tmp)
+                np.multiply(l0, bx, out=acc)
+                np.multiply(l1, by, out=tmp)
+                acc += tmp
+                np.add(acc, alg, out=alg)
+                np.abs(alg, out=alg)
+                # d(x_b, F x_a) = |alg| / |(l0, l1)|
+                _add_ratio(part, alg, l0, l1)
+                # d(x_a, F^T x_b) = |alg| / |(m0, m1)| with m = F^T x_b
+                _affine(bx, by, f00, f10, f20, l0, tmp)
+                _affine(bx, by, f01, f11, f21_, l1, tmp)
+                _add_ratio(part, alg, l0, l1)
     total[np.isnan(total)] = np.inf  # a point at an epipole: its epipolar line is undefined
     return total
 

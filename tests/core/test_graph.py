@@ -156,6 +156,13 @@ def test_a_stream_frame_of_trajectories_is_checked(value, problem):
      "per_trajectory: expected size 5 on axis 0 of [5], got shape (3,)"),
     ("rigidity", RigidityResult(np.full((2, 2, 2), np.inf, np.float32)),
      "ed with NaN or infinite values, expected finite values"),
+    ("rigidity", (np.ones(5), np.ones(5, np.int32), [{"frames": [0, 1, 2], "model": "trifocal"}]), None),
+    ("rigidity", (np.full(5, np.nan), np.ones(5, np.int32), []), "sums with NaN or infinite values, expected finite "
+     "values"),
+    ("rigidity", (np.ones(5), np.ones(4, np.int32), []), "counts: expected size 5 on axis 0 of [5], got shape (4,)"),
+    ("rigidity", (np.ones(5), np.ones(5, np.int32), [{"model": "trifocal"}]),
+     "records that are not a list of dicts with frames, expected one per frame group"),
+    ("rigidity", (np.ones(5), np.ones(5, np.int32)), "a tuple, expected (sums, counts, records) from score_groups"),
     ("motion_net", [[[0.5]]], "saliency as a list, expected a numpy float32 array [2, 2, 2]"),
     ("motion_net", np.full((2, 2, 2), np.nan, np.float32), "saliency with NaN or infinite values, expected finite values"),
     ("refiner", np.full((2, 2, 2), 255, np.uint8), "masks with values in [255, 255], expected <= 1"),

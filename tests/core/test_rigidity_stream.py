@@ -47,9 +47,10 @@ class _Stop(KeyboardInterrupt):
 
 
 def _counting(pipeline, calls: list, stop_after: int | None = None):
-    """Count the rigidity stage's windows; raise after ``stop_after`` of them (a run stopped half-way)."""
+    """Count the rigidity stage's windows (the run loop calls ``score_groups``); raise after ``stop_after`` of
+    them (a run stopped half-way)."""
     stage = pipeline.stages["rigidity"]
-    score = stage.score
+    score = stage.score_groups
 
     def counted(*args, **kwargs):
         if stop_after is not None and len(calls) == stop_after:
@@ -57,7 +58,7 @@ def _counting(pipeline, calls: list, stop_after: int | None = None):
         calls.append(1)
         return score(*args, **kwargs)
 
-    stage.score = counted
+    stage.score_groups = counted
     return pipeline
 
 

@@ -89,7 +89,8 @@ def test_the_ed_scale_window_is_the_specs(tmp_path, ed_window):
 def test_chunks_carry_trajectories_and_means_across_windows(tmp_path):
     """Chunks of 4 frames: flow pairs, trajectories and (with uniform sampling, the same draws in the same order)
     every group's model are those of the whole video; each trajectory's mean over windows equals its mean
-    over the video up to float32 rounding of the per-window means."""
+    over the video up to the order in which its distances are summed (the run loop accumulates each window's
+    float64 sums and counts, ``RigidityStage.score_groups``)."""
     folder = _clip(tmp_path / "clip")
     spec = _spec(folder, tmp_path / "out", rigidity={"sampling": "uniform"}, run={"chunk": 4, "lag": 14})
     video = load_video(discover_sequences(folder)[0], scale=1.0)

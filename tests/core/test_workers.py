@@ -26,8 +26,9 @@ def test_an_in_process_run_computes_its_geometry_with_one_blas_thread(frames_dir
                        "cache": {"enabled": False}})
     pipeline = Pipeline(spec)
     seen = []
-    score = pipeline.stages["rigidity"].score
-    monkeypatch.setattr(pipeline.stages["rigidity"], "score", lambda *a, **k: seen.append(_blas_threads()) or score(*a, **k))
+    score = pipeline.stages["rigidity"].score_groups  # (what the run loop calls)
+    monkeypatch.setattr(pipeline.stages["rigidity"], "score_groups",
+                        lambda *a, **k: seen.append(_blas_threads()) or score(*a, **k))
     with threadpool_limits(limits=2, user_api="blas"):
         before = _blas_threads()
         pipeline.run()

@@ -100,3 +100,26 @@ def test_hartley_normalisation():
     np.testing.assert_allclose(xn.mean(0), 0, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(xn, axis=1).mean(), np.sqrt(2))
     np.testing.assert_allclose((np.c_[x, np.ones(100)] @ t.T)[:, :2], xn, atol=1e-12)
+
+
+def test_distances_over_many_points_are_computed_block_by_block_with_the_same_values():
+    """The per-point kernels run in blocks of ``BLOCK`` points (cache-sized); every point's distance is the one it
+    gets alone, whatever block it falls in, in float32 and float64, and a point at an epipole or mapped to infinity
+    is inf."""
+    from eponet.geometry.homography import BLOCK
+
+    rng = np.random.default_rng(6)
+    f21, f31, f32 = rng.normal(size=(3, 3, 3))
+    h21, h31 = np.eye(3) + 0.05 * rng.normal(size=(2, 3, 3))
+    n = 2 * BLOCK + 7
+    for dtype in (np.float32, np.float64):
+        x1 = rng.uniform(0, 800, (n, 2)).astype(dtype)
+        x2, x3 = (x1 + rng.normal(0, 3, (2, n, 2))).astype(dtype)
+        x1[BLOCK] = np.nan
+        probe = [0, BLOCK - 1, BLOCK, BLOCK + 1, n - 1]
+        for fn, mats in ((triplet_epipolar_distance, (f21, f31, f32)), (homography_triplet_distance, (h21, h31))):
+            d = fn(*mats, x1, x2, x3)
+            assert d.dtype == dtype and d.shape == (n,) and d[BLOCK] == np.inf
+            alone = np.concatenate([fn(*mats, x1[i : i + 1], x2[i : i + 1], x3[i : i + 1]) for i in probe])
+            np.testing.assert_array_equal(d[probe], alone)
+        assert triplet_epipolar_distance(f21, f31, f32, x1[:0], x2[:0], x3[:0]).shape == (0,)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from eponet.geometry.scoring import SamplingHistory, score_frame_groups
+from eponet.geometry.scoring import SamplingHistory, largest, score_frame_groups
 from eponet.geometry.trajectories import build_dense_trajectories
 from eponet.geometry.triplets import FittedModel
 
@@ -212,3 +212,20 @@ def test_shrunk_means_known_answers():
     np.testing.assert_allclose(shrunk[:3], [(2 + 6) / 3, (6 + 6) / 4, (40 + 6) / 12], rtol=1e-6)
     assert np.isnan(shrunk[3]) and shrunk.dtype == np.float32
 
+
+
+def test_largest_selects_the_k_largest_keys_as_a_full_partition_does():
+    """The sampled threshold only narrows where the exact selection runs: the same indices as selecting among all
+    keys, for weighted sampling keys (``log(u) / w``, ``-inf`` included), few keys, and a threshold that too few
+    keys pass."""
+    rng = np.random.default_rng(0)
+    for n, k in ((430_000, 10_000), (50_000, 1_000), (10_001, 10_000), (100, 7)):
+        keys = np.log(rng.random(n)) / rng.uniform(0.1, 1.0, n)
+        keys[:3] = -np.inf
+        got = largest(keys, k)
+        assert got.dtype == np.int64 and len(got) == k and (np.diff(got) > 0).all()
+        np.testing.assert_array_equal(got, np.sort(np.argpartition(-keys, k)[:k]))
+    keys = np.zeros(100_000)  # every 64th key is the largest: the threshold passes only those, fewer than k
+    keys[::64] = 1.0
+    keys[5] = 0.5
+    np.testing.assert_array_equal(largest(keys, 1_564), np.sort(np.r_[np.arange(0, 100_000, 64), 5]))

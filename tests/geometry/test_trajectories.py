@@ -199,6 +199,46 @@ def test_alive_in_frames_and_paint():
     assert painted.dtype == np.float32 and np.array_equal(painted, tr.labels.astype(np.float32))
 
 
+def test_positions_of_a_frame_group_are_those_of_each_frame():
+    """One gather for a triplet's frames (strided or not) gives each frame's positions exactly."""
+    h, w, f = 8, 10, 7
+    fw, bw = _translation(f, h, w, 0.7, -0.3)
+    tr = build_dense_trajectories(fw, bw)
+    for frames in ((1, 2, 3), (0, 2, 4), (3, 5)):
+        ids = alive_in_frames(tr, frames[0], frames[-1])
+        assert len(ids) > 0
+        together = trajectory_positions(tr, ids, frames)
+        assert len(together) == len(frames)
+        for t, p in zip(frames, together):
+            assert p.dtype == np.float32 and p.shape == (len(ids), 2)
+            np.testing.assert_array_equal(p, trajectory_positions(tr, ids, t))
+
+
+def test_stream_frames_assemble_into_the_whole_video_trajectories_with_or_without_labels():
+    """The run loop's windows: stream frames assembled are the whole-video builder's trajectories (labels as
+    window-local ids); without labels, everything but the labels is the same and the labels keep their shape."""
+    from eponet.core.types import assemble_trajectories
+    from eponet.geometry.trajectories import DenseTrajectoryStream
+
+    h, w, f = 8, 10, 7
+    fw, bw = _translation(f, h, w, 0.7, -0.3)
+    stream = DenseTrajectoryStream((h, w))
+    frames = [stream.first()] + [stream.push(fw[t], bw[t]) for t in range(f - 1)]
+    whole = build_dense_trajectories(fw, bw)
+    full, ids = assemble_trajectories(frames)
+    bare, same = assemble_trajectories(frames, labels=False)
+    np.testing.assert_array_equal(ids, np.arange(whole.count))
+    np.testing.assert_array_equal(same, ids)
+    for name in ("start", "length", "offsets", "positions", "labels"):
+        np.testing.assert_array_equal(getattr(full, name), getattr(whole, name))
+    for name in ("start", "length", "offsets", "positions"):
+        np.testing.assert_array_equal(getattr(bare, name), getattr(whole, name))
+    assert bare.labels.shape == whole.labels.shape and (bare.labels == -1).all() and not bare.labels.flags.writeable
+    later, later_ids = assemble_trajectories(frames[2:5])  # a window: its own frame 0, global ids kept
+    assert later.num_frames == 3 and later_ids[0] > 0
+    np.testing.assert_array_equal(later_ids[later.labels], whole.labels[2:5])
+
+
 def test_fill_from_neighbourhood():
     img = np.zeros((5, 6), np.float32)
     img[:, :3] = 1.0
