@@ -80,12 +80,13 @@ class RigidityModel(Protocol):
         ``h.keep(alive_ids)`` when trajectories end, so that windows see what a whole-video call would. The
         history is checkpointed with the trajectories' state when its attributes are arrays and plain values.
 
-        A stage may also have ``score_groups(trajectories, rng, **same keywords)`` returning ``(sums, counts,
-        triplets)``: each trajectory's summed distance (pixels) and number of scored groups over the window's
-        groups, and the records. The loop then calls it instead of ``score`` and accumulates the totals
-        directly: no flow is stacked and no maps are painted for a window, and ``trajectories.labels`` is not
-        filled (a read-only view of -1 with the labels' shape; the loop paints from its own records). The
-        built-in stages have it."""
+        A stage may also have ``score_groups(window, rng, **same keywords)`` returning ``(sums, counts,
+        triplets)``: each of the window's trajectories' summed distance (pixels) and number of scored groups over
+        its groups, and the records. ``window`` is the stream's frames as they are, a
+        :class:`~eponet.core.types.TrackWindow` (``ids``, ``count``, ``num_frames``, ``frame_shape`` and
+        ``group(frames)``: the trajectories present in every frame of a group and their positions). The loop
+        then calls it instead of ``score`` and accumulates the totals directly: no trajectories are assembled,
+        no flow is stacked and no maps are painted for a window. The built-in stages have it."""
 
 
 @runtime_checkable

@@ -26,7 +26,7 @@ import numpy as np
 
 from .imaging import fill_from_neighbourhood
 from .motion import shrunk_means
-from .types import FlowPair, IdIndex, TrackFrame, assemble_trajectories, union_of_ids
+from .types import FlowPair, IdIndex, TrackFrame, TrackWindow, assemble_trajectories, union_of_ids
 
 __all__ = ["GeometryScorer", "CHECKPOINT_SECONDS", "CHECKPOINT_VERSION"]
 
@@ -249,17 +249,18 @@ class GeometryScorer:
         """Score frames ``first .. stop - 1`` (groups starting at ``first .. first + owned - 1``), passing the
         stage's ``history`` (see :class:`~eponet.core.protocols.RigidityModel`) when it keeps one."""
         owner, rigidity, records = self.owner, self.rigidity, self.records
-        totals = hasattr(rigidity, "score_groups")  # the totals alone: no labels, no flow, no maps per window
-        tracks, ids = owner._timed("trajectories", lambda: assemble_trajectories(
-            [records[t] for t in range(first, stop)], labels=not totals))
-        memory = {} if self.history is None else {"history": self.history, "track_ids": ids}
-        if totals:
-            sums, counts, infos = owner._call("rigidity", lambda: rigidity.score_groups(tracks, self.rng, **memory),
-                                              frames=stop - first, shape=self.shape, trajectories=tracks.count)
+        frames = [records[t] for t in range(first, stop)]
+        if hasattr(rigidity, "score_groups"):  # the totals alone: the frames as they are, no flow, no maps
+            window = owner._timed("trajectories", lambda: TrackWindow(frames))
+            memory = {} if self.history is None else {"history": self.history, "track_ids": window.ids}
+            sums, counts, infos = owner._call("rigidity", lambda: rigidity.score_groups(window, self.rng, **memory),
+                                              frames=stop - first, shape=self.shape, trajectories=window.count)
             owner.triplets += [{**info, "frames": [int(f) + first for f in info["frames"]]} for info in infos]
             scored = counts > 0
-            self.acc.add(ids[scored], sums[scored], counts[scored])
+            self.acc.add(window.ids[scored], sums[scored], counts[scored])
             return
+        tracks, ids = owner._timed("trajectories", lambda: assemble_trajectories(frames))
+        memory = {} if self.history is None else {"history": self.history, "track_ids": ids}
         base = self.pending[0].t
         pairs = [self.pending[t - base] for t in range(first, stop - 1)]  # frame stop - 1 may not have arrived yet
         flow = FlowPair(np.stack([i.forward for i in pairs]), np.stack([i.backward for i in pairs]))

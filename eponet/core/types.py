@@ -27,6 +27,7 @@ __all__ = [
     "RigidityResult",
     "TrackFrame",
     "assemble_trajectories",
+    "TrackWindow",
     "check_shape",
 ]
 
@@ -119,6 +120,10 @@ class Trajectories:
     @property
     def num_frames(self) -> int:
         return int(self.labels.shape[0])
+
+    @property
+    def frame_shape(self) -> tuple[int, int]:
+        return tuple(self.labels.shape[1:])
 
     def positions_of(self, j: int) -> np.ndarray:
         return self.positions[self.offsets[j] : self.offsets[j + 1]]
@@ -228,11 +233,10 @@ def point_words(points: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(points, dtype=np.float32).view(np.uint64)[:, 0]
 
 
-def assemble_trajectories(frames: list[TrackFrame], *, labels: bool = True) -> tuple[Trajectories, np.ndarray]:
+def assemble_trajectories(frames: list[TrackFrame]) -> tuple[Trajectories, np.ndarray]:
     """The :class:`Trajectories` of consecutive stream frames (``frames[0].t`` becomes frame 0), and the
-    global id of each of its trajectories, int64 ``(T,)`` ascending. ``labels=False`` leaves the labels out:
-    a read-only ``(F, H, W)`` view of -1 that has their shape only (for a caller that paints from the frames'
-    own labels; a fifth of the time).
+    global id of each of its trajectories, int64 ``(T,)`` ascending (:class:`TrackWindow` reads the same frames
+    without assembling them).
 
     A trajectory present in several of the frames is one trajectory (it lives on one contiguous interval);
     one that started before ``frames[0]`` starts at frame 0 here, one that lives on past the last frame ends
@@ -244,12 +248,8 @@ def assemble_trajectories(frames: list[TrackFrame], *, labels: bool = True) -> t
     >>> tracks, ids = assemble_trajectories([a, b])
     >>> ids.tolist(), tracks.start.tolist(), tracks.length.tolist(), tracks.labels.tolist()
     ([0, 1, 2], [0, 0, 1], [1, 2, 1], [[[0, 1]], [[2, 1]]])
-    >>> assemble_trajectories([a, b], labels=False)[0].labels.tolist()  # the shape only
-    [[[-1, -1]], [[-1, -1]]]
     """
-    if not frames:
-        raise ValueError("assemble_trajectories: no frames")
-    t0 = frames[0].t
+    _check_consecutive(frames, "assemble_trajectories")
     ids = union_of_ids([f.ids for f in frames])
     index = IdIndex(ids)
     n = len(ids)
@@ -257,8 +257,6 @@ def assemble_trajectories(frames: list[TrackFrame], *, labels: bool = True) -> t
     end = np.full(n, -1, np.int32)
     local = []
     for k, frame in enumerate(frames):
-        if frame.t != t0 + k:
-            raise ValueError(f"assemble_trajectories: frame {k} is t={frame.t}, expected {t0 + k} (consecutive)")
         loc = index.positions(frame.ids)
         start[loc] = np.minimum(start[loc], k)
         end[loc] = k
@@ -269,12 +267,82 @@ def assemble_trajectories(frames: list[TrackFrame], *, labels: bool = True) -> t
     positions = np.empty((int(offsets[-1]), 2), np.float32)
     words = point_words(positions)  # (a view: what is written to it lands in positions)
     first = offsets[:-1] - start  # a trajectory's point of frame k is at first + k
-    shape = (len(frames),) + frames[0].labels.shape
-    table = np.empty(shape, np.int32) if labels else np.broadcast_to(np.int32(-1), shape)
+    labels = np.empty((len(frames),) + frames[0].labels.shape, np.int32)
     for k, (frame, loc) in enumerate(zip(frames, local)):
         at = first[loc]
         at += k
         words[at] = point_words(frame.positions)
-        if labels:
-            table[k] = index.positions(frame.labels)  # (a table lookup; a binary search per pixel cost 3x more)
-    return Trajectories(start=start, length=length, offsets=offsets, positions=positions, labels=table), ids
+        labels[k] = index.positions(frame.labels)  # (a table lookup; a binary search per pixel cost 3x more)
+    return Trajectories(start=start, length=length, offsets=offsets, positions=positions, labels=labels), ids
+
+
+def _check_consecutive(frames: list[TrackFrame], caller: str) -> None:
+    if not frames:
+        raise ValueError(f"{caller}: no frames")
+    for k, frame in enumerate(frames):
+        if frame.t != frames[0].t + k:
+            raise ValueError(f"{caller}: frame {k} is t={frame.t}, expected {frames[0].t + k} (consecutive)")
+
+
+class TrackWindow:
+    """Consecutive frames of a trajectory stream (``frames[0].t`` becomes frame 0) read frame by frame, as a run
+    loop's rigidity window is scored (``score_groups`` of :class:`~eponet.core.protocols.RigidityModel`).
+
+    The window's trajectories are ``ids`` (global, int64 ascending; window-local index ``i`` is ``ids[i]``, the
+    trajectory index :func:`assemble_trajectories` gives the same frames). :meth:`group` returns those present in
+    every frame of a frame group and their positions there, read from the frames as they are: no trajectory-major
+    :class:`Trajectories` is assembled (a scatter of every point of the window, a quarter of the geometry's time
+    at 854x480). It relies on what :class:`TrackFrame` promises: ids ascending and numbered in birth order, each
+    trajectory on one contiguous interval of frames.
+
+    >>> a = TrackFrame(5, np.array([0, 1], np.int32), np.zeros((2, 2), np.float32), np.array([[0, 1]], np.int32))
+    >>> b = TrackFrame(6, np.array([1, 2], np.int32), np.ones((2, 2), np.float32), np.array([[2, 1]], np.int32))
+    >>> window = TrackWindow([a, b])
+    >>> window.ids.tolist(), window.count, window.num_frames, window.frame_shape
+    ([0, 1, 2], 3, 2, (1, 2))
+    >>> local, (p, q) = window.group((0, 1))
+    >>> local.tolist(), p.tolist(), q.tolist()
+    ([1], [[0.0, 0.0]], [[1.0, 1.0]])
+    """
+
+    def __init__(self, frames: list[TrackFrame]):
+        _check_consecutive(frames, "TrackWindow")
+        self.frames = list(frames)
+        self.ids = union_of_ids([f.ids for f in frames])
+        index = IdIndex(self.ids)
+        self._local = [index.positions(f.ids) for f in frames]  # each row's window-local index
+        self._end = np.empty(len(self.ids), np.int32)  # the last window frame each trajectory is in
+        for k, local in enumerate(self._local):
+            self._end[local] = k
+
+    @property
+    def count(self) -> int:
+        return len(self.ids)
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.frames)
+
+    @property
+    def frame_shape(self) -> tuple[int, int]:
+        return tuple(self.frames[0].labels.shape)
+
+    def group(self, frames: tuple[int, ...]) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Window-local indices int64 ``(N,)`` (ascending) of the trajectories present in every one of ``frames``
+        (ascending window frame numbers), and their positions float32 ``(N, 2)`` in each frame.
+
+        Present in the first and the last frame means present in between (one contiguous life); born no later
+        than the first frame means an id no larger than its newest one (birth order). So in each frame they are
+        the rows up to that id whose trajectory lasts until the last frame: in the last frame a prefix."""
+        newest = self.frames[frames[0]].ids[-1] if len(self.frames[frames[0]].ids) else -1
+        points = []
+        for k in frames:
+            frame = self.frames[k]
+            born = int(np.searchsorted(frame.ids, newest, side="right"))
+            if k == frames[-1]:
+                local = self._local[k][:born]
+                points.append(frame.positions[:born])
+            else:
+                rows = np.flatnonzero(self._end[self._local[k][:born]] >= frames[-1])
+                points.append(point_words(frame.positions)[rows].view(np.float32).reshape(-1, 2))
+        return local, points

@@ -8,7 +8,7 @@ import logging
 import numpy as np
 
 from ..core.params import Param
-from ..core.types import FlowPair, RigidityResult, Trajectories
+from ..core.types import FlowPair, RigidityResult, TrackWindow, Trajectories
 from .scoring import SAMPLING, SamplingHistory, check_rigidity_inputs, ed_maps_from_scores, frame_groups, score_frame_groups
 from .triplets import FittedModel, RobustSettings
 
@@ -165,15 +165,16 @@ class RigidityStage(ABC):
         per_trajectory, ed = ed_maps_from_scores(trajectories, sums, counts, prior_groups=self.prior_groups)
         return RigidityResult(ed=ed, per_trajectory=per_trajectory, triplets=infos)
 
-    def score_groups(self, trajectories: Trajectories, rng: np.random.Generator, *,
+    def score_groups(self, window: TrackWindow, rng: np.random.Generator, *,
                      history: SamplingHistory | None = None,
                      track_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[dict]]:
-        """What :meth:`score` computes before painting: every trajectory's summed distance float64 ``(T,)`` in
-        pixels, its number of scored groups int32 ``(T,)`` and one record per group (``frames`` window-local,
+        """What :meth:`score` computes before painting, on a stream's window of frames read as they are: every
+        trajectory's summed distance float64 ``(T,)`` in pixels, its number of scored groups int32 ``(T,)``
+        (``T``: the window's trajectories, ``window.ids``) and one record per group (``frames`` window-local,
         ``model``, diagnostics). The run loop accumulates these across its windows and paints each frame once
-        from the totals, so it calls this instead of :meth:`score` (no maps, no flow)."""
-        check_rigidity_inputs(trajectories, None, self.views)
-        return self._score_groups(trajectories, rng, history, track_ids)
+        from the totals, so it calls this instead of :meth:`score`: no trajectories assembled, no flow, no maps."""
+        check_rigidity_inputs(window, None, self.views)
+        return self._score_groups(window, rng, history, track_ids)
 
     def _score_groups(self, trajectories, rng, history, track_ids):
         groups = frame_groups(trajectories.num_frames, self.views, self.stride)
@@ -181,7 +182,7 @@ class RigidityStage(ABC):
             log.warning("video of %d frames is too short for stride %d; using %d",
                         trajectories.num_frames, self.stride, groups[0][1] - groups[0][0])
         # tracks without a pixel grid (labels of 1 x 1, e.g. Hopkins155's feature tracks) have no frame border
-        frame_size = tuple(trajectories.labels.shape[1:]) if min(trajectories.labels.shape[1:]) > 1 else None
+        frame_size = tuple(trajectories.frame_shape) if min(trajectories.frame_shape) > 1 else None
 
         def estimate(points, generator):
             return self.estimate(points, generator, frame_size)

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.motion import shrunk_means
-from ..core.types import MIN_FRAMES, FlowPair, Trajectories
+from ..core.types import MIN_FRAMES, FlowPair, TrackWindow, Trajectories
 from .trajectories import (
     alive_in_frames,
     fill_from_neighbourhood,
@@ -38,7 +38,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 
-def check_rigidity_inputs(trajectories: Trajectories, flow: FlowPair | None, views: int) -> None:
+def check_rigidity_inputs(trajectories: Trajectories | TrackWindow, flow: FlowPair | None, views: int) -> None:
     """Raise :class:`~eponet.core.errors.InputError` (one line) for inputs no rigidity model can use."""
     f = trajectories.num_frames
     if f < max(MIN_FRAMES, views):
@@ -50,7 +50,9 @@ def check_rigidity_inputs(trajectories: Trajectories, flow: FlowPair | None, vie
                 f"{trajectories.labels.shape[1]}x{trajectories.labels.shape[2]}; expected ({f - 1}, "
                 f"{trajectories.labels.shape[1]}, {trajectories.labels.shape[2]}, 2)"
             )
-    if not np.isfinite(trajectories.positions).all():
+    positions = [f.positions for f in trajectories.frames] if isinstance(trajectories, TrackWindow) else \
+        [trajectories.positions]
+    if not all(np.isfinite(p).all() for p in positions):
         raise InputError("trajectory positions contain NaN or inf")
 
 
@@ -156,7 +158,7 @@ def largest(keys: np.ndarray, k: int) -> np.ndarray:
 
 
 def score_frame_groups(
-    trajectories: Trajectories,
+    trajectories: Trajectories | TrackWindow,
     groups: list[tuple[int, ...]],
     estimate: Callable[[list[np.ndarray], np.random.Generator], FittedModel],
     rng: np.random.Generator,
@@ -192,6 +194,9 @@ def score_frame_groups(
     trajectories alive through a triplet lie on the rider (the blurred background's end after a frame or two),
     and the rider captured the background model.
 
+    ``trajectories`` may be a stream's :class:`~eponet.core.types.TrackWindow` (its frames read as they are;
+    indices are window-local) instead of assembled :class:`Trajectories`: the same groups, points and draws.
+
     A stream scores a video window by window; ``history`` (a :class:`SamplingHistory`, updated in place) and
     ``track_ids`` (int (T,): each trajectory's global id) carry guided sampling's ``D_j`` and ``s`` from one
     window to the next, so the windows' groups are sampled as the whole video's are. The returned sums and
@@ -206,11 +211,10 @@ def score_frame_groups(
     infos : list of dict
         One JSON-serialisable record per group (frames, points, model diagnostics).
     """
-    ends = trajectory_ends(trajectories)
-    shape = trajectories.labels.shape[1:]
+    group_points = _group_points(trajectories)
+    shape = trajectories.frame_shape
     # tracks without a pixel grid (labels of 1 x 1, e.g. Hopkins155's feature tracks) have no frame border
     frame_size = tuple(shape) if border > 0 and min(shape) > 1 else None
-    ordered = bool(np.all(np.diff(trajectories.start) >= 0))  # other builders may number them differently
     sums = np.zeros(trajectories.count)
     counts = np.zeros(trajectories.count, np.int32)
     infos = []
@@ -229,8 +233,7 @@ def score_frame_groups(
         else:
             prior_sums, prior_counts = np.zeros(trajectories.count), np.zeros(trajectories.count, np.int64)
     for frames in groups:
-        ids = alive_in_frames(trajectories, frames[0], frames[-1], ends, births_ordered=ordered)
-        pts = trajectory_positions(trajectories, ids, tuple(frames))  # float32: scored in float32
+        ids, pts = group_points(tuple(frames))  # float32 positions: scored in float32
         if len(ids) > max_points:
             if guided and (scale is not None or frame_size is not None or grid is not None):
                 weight = np.ones(len(ids))
@@ -277,6 +280,22 @@ def score_frame_groups(
         history.store(track_ids, prior_sums, prior_counts)
         history.scale = scale
     return sums, counts, infos
+
+
+def _group_points(trajectories: Trajectories | TrackWindow):
+    """``frames -> (indices, positions)``: the trajectories present in every one of ``frames`` (ascending int64
+    indices) and their float32 ``(N, 2)`` positions in each frame (a stream's window reads its frames as they are,
+    :meth:`~eponet.core.types.TrackWindow.group`)."""
+    if isinstance(trajectories, TrackWindow):
+        return trajectories.group
+    ends = trajectory_ends(trajectories)
+    ordered = bool(np.all(np.diff(trajectories.start) >= 0))  # other builders may number them differently
+
+    def group(frames: tuple[int, ...]) -> tuple[np.ndarray, list[np.ndarray]]:
+        ids = alive_in_frames(trajectories, frames[0], frames[-1], ends, births_ordered=ordered)
+        return ids, trajectory_positions(trajectories, ids, frames)
+
+    return group
 
 
 def ed_maps_from_scores(

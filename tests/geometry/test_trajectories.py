@@ -214,29 +214,43 @@ def test_positions_of_a_frame_group_are_those_of_each_frame():
             np.testing.assert_array_equal(p, trajectory_positions(tr, ids, t))
 
 
-def test_stream_frames_assemble_into_the_whole_video_trajectories_with_or_without_labels():
+def test_stream_frames_assemble_into_the_whole_video_trajectories_and_a_window_reads_them_as_they_are():
     """The run loop's windows: stream frames assembled are the whole-video builder's trajectories (labels as
-    window-local ids); without labels, everything but the labels is the same and the labels keep their shape."""
-    from eponet.core.types import assemble_trajectories
+    window-local ids); a TrackWindow over the same frames gives every frame group's trajectories (the same
+    window-local indices) and positions exactly as the assembled trajectories do, for windows that start
+    anywhere, with strided groups too."""
+    from eponet.core.types import TrackWindow, assemble_trajectories
+    from eponet.geometry.scoring import frame_groups
     from eponet.geometry.trajectories import DenseTrajectoryStream
 
-    h, w, f = 8, 10, 7
-    fw, bw = _translation(f, h, w, 0.7, -0.3)
+    h, w, f = 8, 10, 9
+    rng = np.random.default_rng(3)
+    fw = rng.normal(0.0, 0.7, (f - 1, h, w, 2)).astype(np.float32)  # trajectories end and start everywhere
+    bw = -fw + rng.normal(0.0, 0.3, fw.shape).astype(np.float32)
     stream = DenseTrajectoryStream((h, w))
     frames = [stream.first()] + [stream.push(fw[t], bw[t]) for t in range(f - 1)]
     whole = build_dense_trajectories(fw, bw)
     full, ids = assemble_trajectories(frames)
-    bare, same = assemble_trajectories(frames, labels=False)
     np.testing.assert_array_equal(ids, np.arange(whole.count))
-    np.testing.assert_array_equal(same, ids)
     for name in ("start", "length", "offsets", "positions", "labels"):
         np.testing.assert_array_equal(getattr(full, name), getattr(whole, name))
-    for name in ("start", "length", "offsets", "positions"):
-        np.testing.assert_array_equal(getattr(bare, name), getattr(whole, name))
-    assert bare.labels.shape == whole.labels.shape and (bare.labels == -1).all() and not bare.labels.flags.writeable
-    later, later_ids = assemble_trajectories(frames[2:5])  # a window: its own frame 0, global ids kept
-    assert later.num_frames == 3 and later_ids[0] > 0
-    np.testing.assert_array_equal(later_ids[later.labels], whole.labels[2:5])
+    for first, stop in ((0, f), (2, 7), (3, 6)):
+        tracks, gids = assemble_trajectories(frames[first:stop])
+        window = TrackWindow(frames[first:stop])
+        np.testing.assert_array_equal(window.ids, gids)
+        assert (window.count, window.num_frames, window.frame_shape) == (tracks.count, tracks.num_frames, (h, w))
+        np.testing.assert_array_equal(gids[tracks.labels], whole.labels[first:stop])
+        for stride in (1, 2):
+            for group in frame_groups(stop - first, 3, stride):
+                local, points = window.group(group)
+                expected = alive_in_frames(tracks, group[0], group[-1])
+                assert len(expected) > 0 and local.dtype == np.int64
+                np.testing.assert_array_equal(local, expected)
+                for p, q in zip(points, trajectory_positions(tracks, expected, group)):
+                    assert p.dtype == np.float32
+                    np.testing.assert_array_equal(p, q)
+    with pytest.raises(ValueError, match="frame 1 is t=2, expected 1"):
+        TrackWindow([frames[0], frames[2]])
 
 
 def test_fill_from_neighbourhood():
