@@ -233,7 +233,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             flow: dict | None = None, motion_net: dict | None = None, recipe_model: dict | None = None,
             teacher: Path | None = None, teacher_seeds: tuple[int, ...] = (0, 1), teacher_share: float = 0.5,
             recipe_data: list[dict] | None = None, recipe_phases: list[dict] | None = None,
-            fusion_maps: str = "own", appearance: dict | None = None, fusion_seeds: tuple[int, ...] = (0,)) -> dict[str, dict]:
+            fusion_maps: str = "own", appearance: dict | None = None,
+            fusion_seeds: tuple[int, ...] = (0,)) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
