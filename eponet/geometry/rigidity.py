@@ -99,7 +99,9 @@ ROBUST_PARAMS = (
 
 class RigidityStage(ABC):
     """Template of a rigidity stage: groups of ``views`` frames, one model per group, per-trajectory means,
-    ED maps. Subclasses set ``views`` and implement :meth:`estimate`."""
+    ED maps. Subclasses set ``views`` and implement :meth:`estimate`. The run loop calls :meth:`score_groups`
+    (the totals of a window of its frames), a whole-video call :meth:`score`: a subclass that changes what is
+    scored overrides both."""
 
     views = 3
 
