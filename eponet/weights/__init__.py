@@ -10,7 +10,8 @@ import yaml
 
 from eponet.core.errors import MissingWeights, SpecError
 
-__all__ = ["WEIGHTS_DIR", "BuiltinWeights", "builtin_weights", "sha256_of", "resolve_weights", "weights_list"]
+__all__ = ["WEIGHTS_DIR", "BuiltinWeights", "builtin_weights", "sha256_of", "weights_path", "resolve_weights",
+           "weights_list"]
 
 WEIGHTS_DIR = Path(__file__).resolve().parent
 
@@ -41,6 +42,23 @@ def sha256_of(path: str | Path) -> str:
     return digest.hexdigest()
 
 
+def weights_path(name_or_path: str, *, kind: str | None = None) -> Path:
+    """The file behind a built-in name or a path, not read (:func:`resolve_weights` also verifies it). Raises
+    :class:`MissingWeights` for a built-in name of another ``kind`` and for a name that is neither built in nor
+    a file."""
+    catalogue = builtin_weights()
+    if name_or_path in catalogue:
+        entry = catalogue[name_or_path]
+        if kind is not None and entry.kind != kind:
+            raise MissingWeights(f"weights {name_or_path!r} are for a {entry.kind} stage, not {kind}")
+        return entry.file
+    path = Path(name_or_path).expanduser()
+    if not path.suffix and not path.exists():
+        known = ", ".join(n for n, e in catalogue.items() if kind is None or e.kind == kind) or "none"
+        raise MissingWeights(f"weights {name_or_path!r}: neither a built-in name (built-in: {known}) nor a file")
+    return path
+
+
 def resolve_weights(name_or_path: str, *, sha256: str | None = None, kind: str | None = None) -> tuple[Path, str]:
     """The verified file behind a built-in name or a path, and its sha256.
 
@@ -50,20 +68,12 @@ def resolve_weights(name_or_path: str, *, sha256: str | None = None, kind: str |
     Raises :class:`MissingWeights` (one line, naming the file) when the file is missing, unreadable or fails
     its checksum.
     """
-    catalogue = builtin_weights()
-    if name_or_path in catalogue:
-        entry = catalogue[name_or_path]
-        if kind is not None and entry.kind != kind:
-            raise MissingWeights(f"weights {name_or_path!r} are for a {entry.kind} stage, not {kind}")
-        if sha256 is not None and sha256.lower() != entry.sha256:
-            raise MissingWeights(f"built-in weights {name_or_path!r}: expected sha256 {entry.sha256} (the catalogue's), "
-                                 f"given {sha256}", key="sha256")
-        path, expected = entry.file, entry.sha256
-    else:
-        path, expected = Path(name_or_path).expanduser(), sha256
-        if not path.suffix and not path.exists():
-            known = ", ".join(n for n, e in catalogue.items() if kind is None or e.kind == kind) or "none"
-            raise MissingWeights(f"weights {name_or_path!r}: neither a built-in name (built-in: {known}) nor a file")
+    entry = builtin_weights().get(name_or_path)
+    if entry is not None and sha256 is not None and sha256.lower() != entry.sha256:
+        raise MissingWeights(f"built-in weights {name_or_path!r}: expected sha256 {entry.sha256} (the catalogue's), "
+                             f"given {sha256}", key="sha256")
+    path = weights_path(name_or_path, kind=kind)
+    expected = entry.sha256 if entry is not None else sha256
     if not path.is_file():
         raise MissingWeights(f"{path}: weights file not found")
     try:

