@@ -50,14 +50,19 @@ class ConvGRUStage:
 
     ``weights`` may list several fusions trained on the same appearance stage (an ensemble, e.g. one recipe
     trained with two seeds): the fused probability is the mean of theirs, before the self-training, for the cost
-    of one ConvGRU pass each."""
+    of one ConvGRU pass each.
+
+    ``motion_support`` (off by default) then lowers each foreground region of the result that holds no motion
+    probability of at least that value to the motion map (:func:`eponet.fusion.support.motion_supported`): the
+    appearance shapes an object but does not add a look-alike that does not move."""
 
     def __init__(self, *, weights: str | list[str] = "epo-plus-davis-lite2", sha256: str | list[str] | None = None,
                  window: int | None = 32,
                  overlap: int = 8, blend: str = "centre", device: str = "auto", selftrain: float = 0.0,
                  selftrain_foreground: float = 0.9, selftrain_background: float = 0.05, selftrain_samples: int = 60000,
                  selftrain_l2: float = 1e-3, selftrain_foreground_share: float = 0.0,
-                 selftrain_foreground_floor: float = 0.5, selftrain_background_motion: float | None = None):
+                 selftrain_foreground_floor: float = 0.5, selftrain_background_motion: float | None = None,
+                 motion_support: float | None = None):
         loaded = [load_fusion(name, digest) for name, digest in weights_list(weights, sha256)]
         self.models = [model for model, _ in loaded]
         digests = [digest for _, digest in loaded]
@@ -72,6 +77,7 @@ class ConvGRUStage:
                               samples=selftrain_samples, l2=selftrain_l2, foreground_share=selftrain_foreground_share,
                               foreground_floor=selftrain_foreground_floor,
                               background_motion=selftrain_background_motion)
+        self.motion_support = motion_support
 
     def fuse(self, features: np.ndarray, saliency: np.ndarray) -> np.ndarray:
         """Foreground probability float32 ``(F, H, W)`` from features ``(F, C, h, w)`` and saliency ``(F, H, W)``."""
@@ -99,6 +105,10 @@ class ConvGRUStage:
             from eponet.fusion.selftrain import self_trained_probability
 
             out = self_trained_probability(features, out, motion=saliency, **self.selftrain)
+        if self.motion_support is not None:
+            from eponet.fusion.support import motion_supported
+
+            out = motion_supported(out, saliency, self.motion_support)
         return out
 
 
@@ -164,6 +174,9 @@ def eponet_stages():
                 Param("selftrain_background_motion", "float", None, "a background example for selftrain must also be "
                       "below this in the motion map (null = the fused map alone decides)", minimum=0.0, maximum=1.0,
                       nullable=True),
+                Param("motion_support", "float", None, "a fused foreground region whose motion probability never "
+                      "reaches this falls to the motion map (null = off; a frame without any supported region "
+                      "keeps its fused map)", minimum=0.0, maximum=1.0, nullable=True),
             ),
             doc="EpO+ fusion: bottleneck appearance features + motion map through a bidirectional ConvGRU",
             check=_check,

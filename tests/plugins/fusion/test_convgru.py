@@ -302,3 +302,39 @@ def test_epo_plus_preset_with_the_shipped_weights_on_real_davis_frames(tmp_path,
     assert manifest["plugins"]["fusion"]["plugin"] == "convgru"
     assert manifest["plugins"]["appearance"]["plugin"] == "efficientnet_lite2"
     assert manifest["evaluation"]["overall"]["J"]["mean"] >= 0.80  # the motion nets alone: 0.80
+
+
+def test_motion_support_drops_a_look_alike_that_does_not_move(tmp_path):
+    """Two regions of one appearance in the fused map, only one of them moving: ``motion_support`` keeps the moving
+    one exactly and lowers the other to the motion map; a frame where nothing has support keeps its fused map; the
+    stage applies it after the fusion (and its self-training)."""
+    from eponet.fusion.support import motion_supported
+
+    fused = np.full((3, 12, 16), 0.02, np.float32)
+    fused[:, 2:6, 2:6] = 0.9  # the moving object
+    fused[:, 6:10, 10:14] = 0.8  # a look-alike standing still
+    motion = np.full_like(fused, 0.01)
+    motion[:2, 3:5, 3:5] = 0.7  # frames 0 and 1: the object moves; frame 2: the motion map misses it
+    motion[:, 7, 11] = 0.3  # some weak motion on the look-alike
+    out = motion_supported(fused, motion, support=0.5)
+    np.testing.assert_array_equal(out[:2, 2:6, 2:6], fused[:2, 2:6, 2:6])
+    np.testing.assert_array_equal(out[:2, 6:10, 10:14], motion[:2, 6:10, 10:14])
+    np.testing.assert_array_equal(out[2], fused[2])
+    outside = np.ones(fused.shape, bool)
+    outside[:, 6:10, 10:14] = False
+    np.testing.assert_array_equal(out[outside], fused[outside])
+    low = motion_supported(fused, motion, support=0.25)  # 0.3 supports the look-alike too
+    np.testing.assert_array_equal(low[:2], fused[:2])
+    np.testing.assert_array_equal(low[2, 2:6, 2:6], motion[2, 2:6, 2:6])  # and only it in frame 2
+    with pytest.raises(ValueError, match="must both be"):
+        motion_supported(fused, motion[:, :6], support=0.5)
+
+    _save_weights(tmp_path / "fusion.pt", _model(motion_residual=True))  # fresh: fuses to the motion map itself
+    features = np.zeros((3, 6, 6, 8), np.float32)
+    plain = ConvGRUStage(weights=str(tmp_path / "fusion.pt"), window=None, device="cpu")
+    gated = ConvGRUStage(weights=str(tmp_path / "fusion.pt"), window=None, device="cpu", motion_support=0.5)
+    maps = motion.copy()
+    maps[:2, 2:6, 2:6] = 0.9  # the fresh fusion returns the motion map: one supported region in frames 0 and 1
+    np.testing.assert_allclose(plain.fuse(features, maps), maps, atol=1e-5)
+    np.testing.assert_allclose(gated.fuse(features, maps), motion_supported(plain.fuse(features, maps), maps, 0.5),
+                               atol=1e-6)

@@ -173,6 +173,7 @@ def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
     assert meta["appearance"]["plugin"] == fused["appearance"]["plugin"] == "efficientnet_lite2"
     # the authors' CRF weights, on the box around the object only (held out: the same J, 39% less CRF time)
     assert fused["refiner"] == {"plugin": "densecrf", "max_size": 427, "crop_margin": 3.0}
+    assert fused["fusion"]["motion_support"] == 0.7  # chosen per fold on the other folds (the card)
 
 
 def test_epo_preset_on_the_embedded_demo_reaches_the_target_j(tmp_path):
