@@ -161,9 +161,13 @@ class Pipeline:
 
     def key(self, kind: str, upstream: str, **extra) -> str:
         """Cache key of stage ``kind``: its plugin, version, code fingerprint (built-in or third-party:
-        :func:`~eponet.core.cache.code_fingerprint`), parameters and upstream key."""
+        :func:`~eponet.core.cache.code_fingerprint`), parameters, what they resolved to on this machine (a stage's
+        ``resolved`` dict, e.g. ``precision: auto`` -> bfloat16, where it has one) and upstream key."""
         config = self.spec.stages[kind]
         code = code_fingerprint(factory_module(config.spec.factory))  # a third-party plugin's package too
+        resolved = getattr(self.stages.get(kind), "resolved", None)
+        if isinstance(resolved, dict):
+            extra = {**extra, "resolved": resolved}
         return content_key(stage=kind, plugin=config.plugin, version=config.spec.version, code=code,
                            params=config.params, upstream=upstream, **extra)
 

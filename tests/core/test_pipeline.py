@@ -65,6 +65,19 @@ def test_cache_skips_recomputation(frames_dir, tmp_path, monkeypatch):
     assert off["sequences"]["clip"]["cached"] == []
 
 
+def test_a_stages_resolved_settings_are_part_of_its_cache_key(frames_dir, tmp_path):
+    """``precision: auto`` means bfloat16 on one CPU and float32 on another: the key of a cached stage includes what
+    its ``resolved`` dict says, so machines sharing a cache never mix the two; a stage without one keeps its key."""
+    pipeline = Pipeline(_spec(frames_dir, tmp_path / "out", tmp_path / "cache"))
+    plain = pipeline.key("flow", "input")
+    assert not hasattr(pipeline.stages["flow"], "resolved")
+    keys = set()
+    for precision in ("bfloat16", "float32"):
+        pipeline.stages["flow"].resolved = {"device": "cpu", "precision": precision}
+        keys.add(pipeline.key("flow", "input"))
+    assert len(keys) == 2 and plain not in keys
+
+
 def test_nothing_half_written_on_a_corrupt_frame(tmp_path):
     root = tmp_path / "davis"
     write_frames(root / "JPEGImages" / "480p" / "a", textured_frames(3))

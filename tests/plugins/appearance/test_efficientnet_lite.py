@@ -140,3 +140,23 @@ def test_larger_variants_tap_the_ends_of_their_stride_stages_and_are_pretrained(
     with torch.no_grad():
         cat, espresso = torch.softmax(net(x), 1)
     assert cat.argmax().item() in CATS and espresso.argmax().item() == ESPRESSO
+
+
+def test_bfloat16_features_stay_close_to_float32_and_auto_resolves_by_the_cpu(stage):
+    """``precision: bfloat16`` gives the float32 features to a few per cent on a real photograph (the same
+    layout and dtype); ``auto`` is bfloat16 exactly where the CPU has native bfloat16; ``resolved`` says which."""
+    import skimage.data
+
+    from eponet.core.devices import native_bfloat16
+
+    frames = np.stack([cv2.resize(skimage.data.chelsea(), (120, 80)), cv2.resize(skimage.data.coffee(), (120, 80))])
+    reference = stage.features(_video(frames))
+    half = lite.EfficientNetLiteStage(device="cpu", precision="bfloat16")
+    assert half.resolved == {"device": "cpu", "precision": "bfloat16"}
+    features = half.features(_video(frames))
+    assert features.shape == reference.shape == (2, 472, 10, 15) and features.dtype == np.float32
+    assert np.abs(features - reference).mean() / np.abs(reference).mean() < 0.06
+    assert np.corrcoef(features.ravel(), reference.ravel())[0, 1] > 0.99
+    auto = lite.EfficientNetLiteStage(device="cpu", precision="auto")
+    assert auto.resolved["precision"] == ("bfloat16" if native_bfloat16() else "float32")
+    assert stage.resolved == {"device": "cpu", "precision": "float32"}
