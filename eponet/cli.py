@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import re
+import signal
 import sys
+import threading
 import traceback
 from pathlib import Path
 from typing import Callable
@@ -25,11 +28,35 @@ def _configure_logging(verbose: bool, quiet: bool) -> None:
         logging.getLogger(noisy).setLevel(logging.WARNING)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, a batch scheduler), raised in the main thread as Ctrl-C raises
+    ``KeyboardInterrupt``: the run stops the same way (its workers ended, nothing half-written), exit status 143."""
+
+
+def _raise_terminated(signum, frame) -> None:
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def _terminate_like_interrupt():
+    """SIGTERM raises :class:`Terminated` while the block runs (where a handler can be set: the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def guarded(function: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
-    """Run a command; an eponet error becomes one line on stderr and its exit code (traceback with -v)."""
+    """Run a command; an eponet error becomes one line on stderr and its exit code (traceback with -v); Ctrl-C
+    and SIGTERM become one line and 130 / 143."""
     verbose = getattr(args, "verbose", False)
     try:
-        return function(args)
+        with _terminate_like_interrupt():
+            return function(args)
     except SpecError as exc:
         if verbose:
             traceback.print_exc()
@@ -46,6 +73,9 @@ def guarded(function: Callable[[argparse.Namespace], int], args: argparse.Namesp
             traceback.print_exc()
         print(f"error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except Terminated:
+        print("error: terminated (SIGTERM)", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130

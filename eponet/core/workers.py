@@ -14,7 +14,7 @@ from .progress import listening
 from .spec import Spec
 
 __all__ = ["worker_count", "run_in_workers", "limit_threads", "torch_threads", "torch_threads_limited",
-           "blas_threads_limited", "BLAS_THREADS"]
+           "blas_threads_limited", "exit_with_parent", "BLAS_THREADS"]
 
 #: Threads of numpy's BLAS (OpenBLAS, MKL) in a run. The geometry's linear algebra is on small matrices (27 x 27
 #: normal equations, batches of 3 x 3 and 9 x 9 systems), where BLAS threads cost more to wake than they save and
@@ -66,9 +66,40 @@ def blas_threads_limited(threads: int = BLAS_THREADS):
 
 _WORKER = None  # the worker process's Pipeline
 
+#: Seconds between a worker's checks that the process that started it is still there.
+PARENT_CHECK_S = 0.5
+#: The exit status of a worker whose parent is gone (128 + SIGTERM, as if the run's kill had reached it).
+PARENT_GONE_EXIT = 143
+
+
+def exit_with_parent(interval: float = PARENT_CHECK_S) -> None:
+    """End this process, within ``interval`` seconds, once the process that started it is gone.
+
+    A run killed by a signal it cannot handle (SIGKILL, an out-of-memory kill) or by one whose default action ends
+    it at once (SIGTERM from ``kill``, ``timeout`` or a batch scheduler, sent to the run's process alone) never
+    stops its worker processes: they would go on computing and writing the outputs of a run that no longer
+    exists, then wait forever to report them, each holding its pipeline's memory. A daemon thread polls
+    ``os.getppid()`` (a process whose parent ends is handed to another) and ends the worker with ``os._exit``
+    (no cleanup: its own children, the CRF helper, see their pipes close and end too). The re-run resumes from
+    what was complete: each output file is written atomically, and a sequence counts as done only when the run
+    recorded it."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch():
+        while True:
+            if os.getppid() != parent:
+                os._exit(PARENT_GONE_EXIT)
+            time.sleep(interval)
+
+    threading.Thread(target=watch, name="eponet-parent-watch", daemon=True).start()
+
 
 def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int, reports) -> None:
     global _WORKER
+    exit_with_parent()
     limit_threads(threads, overlapped=spec.run.threads)
     from .progress import forward_to, set_quiet
 
@@ -126,6 +157,17 @@ def _rebuilt_error(name: str, exit_code: int, message: str) -> EponetError:
     return _WorkerError(message, exit_code)
 
 
+def _end_workers(pool) -> None:
+    """Terminate a process pool's workers (``terminate_workers`` where Python has it, 3.14; else each process)."""
+    terminate = getattr(pool, "terminate_workers", None)
+    if terminate is not None:
+        terminate()
+        return
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        if process.is_alive():
+            process.terminate()
+
+
 def run_in_workers(pipeline, sources: list[SequenceSource], workers: int, finished, isolate=None) -> None:
     """Run ``sources`` on ``workers`` spawned processes; ``finished(name, entry)`` for each sequence done. A
     sequence whose input or stage fails goes to ``isolate(name, reason, exit_code)`` when given (the others go
@@ -161,9 +203,10 @@ def run_in_workers(pipeline, sources: list[SequenceSource], workers: int, finish
                         error = failure
                         for other in futures:  # those not started yet; running ones finish
                             other.cancel()
-        except BaseException:
-            for future in futures:
+        except BaseException:  # Ctrl-C or SIGTERM (eponet.cli.Terminated): the workers end now, not after their
+            for future in futures:  # sequences (SIGTERM reached this process alone; Ctrl-C reached them too)
                 future.cancel()
+            _end_workers(pool)
             raise
         if error is not None:
             raise error

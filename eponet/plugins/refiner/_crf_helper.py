@@ -15,14 +15,17 @@ def main() -> int:
     while True:
         try:
             args = pickle.load(source)
-        except EOFError:
+        except (EOFError, pickle.UnpicklingError):  # stdin closed, or cut off mid-request: the parent ended
             return 0
         try:
             answer = ("ok", _crf_margin(*args))
         except Exception as exc:  # noqa: BLE001 - handed to the parent, which raises it
             answer = ("error", f"{exc.__class__.__name__}: {exc}")
-        pickle.dump(answer, sink, protocol=pickle.HIGHEST_PROTOCOL)
-        sink.flush()
+        try:
+            pickle.dump(answer, sink, protocol=pickle.HIGHEST_PROTOCOL)
+            sink.flush()
+        except BrokenPipeError:  # the parent ended while this frame was being refined: nothing to answer
+            return 0
 
 
 if __name__ == "__main__":

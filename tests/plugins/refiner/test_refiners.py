@@ -130,6 +130,33 @@ def test_an_error_in_the_helper_process_is_raised_here():
     assert _iou(DenseCrfRefiner().refine(frame[None], prob[None])[0], truth) > 0.9  # and it goes on
 
 
+def test_the_helper_process_ends_quietly_when_its_parent_goes_mid_request():
+    """The parent ends (killed) with a request in flight or cut off: the helper ends with status 0 and prints no
+    traceback into the run's stderr."""
+    import os
+    import pickle
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))}
+    command = [sys.executable, "-m", "eponet.plugins.refiner._crf_helper"]
+    frame, prob, _ = _scene()
+    request = pickle.dumps((frame, prob, 5, 3.0, 3.0, 50.0, 10.0, 5.0), protocol=pickle.HIGHEST_PROTOCOL)
+    answered_to_nobody = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                          stderr=subprocess.PIPE, env=env)
+    answered_to_nobody.stdout.close()  # nobody reads the answer any more
+    answered_to_nobody.stdin.write(request)
+    answered_to_nobody.stdin.close()
+    assert answered_to_nobody.wait(timeout=60) == 0 and answered_to_nobody.stderr.read() == b""
+    cut_off = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                               env=env)
+    cut_off.stdin.write(request[: len(request) // 2])
+    cut_off.stdin.close()
+    assert cut_off.wait(timeout=60) == 0 and cut_off.stderr.read() == b""
+
+
 def test_without_a_helper_process_the_crf_runs_here_with_a_warning(monkeypatch, caplog):
     from eponet.plugins.refiner import densecrf
 
