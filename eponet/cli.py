@@ -46,8 +46,8 @@ def _terminate_like_interrupt():
     previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    finally:  # (None: a handler set outside Python, which cannot be restored from here; the default then)
+        signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
 def guarded(function: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:

@@ -72,8 +72,9 @@ PARENT_CHECK_S = 0.5
 PARENT_GONE_EXIT = 143
 
 
-def exit_with_parent(interval: float = PARENT_CHECK_S) -> None:
-    """End this process, within ``interval`` seconds, once the process that started it is gone.
+def exit_with_parent(parent: int | None = None, interval: float = PARENT_CHECK_S) -> None:
+    """End this process, within ``interval`` seconds, once its parent ``parent`` (a pid; default: the parent it has
+    now) is gone.
 
     A run killed by a signal it cannot handle (SIGKILL, an out-of-memory kill) or by one whose default action ends
     it at once (SIGTERM from ``kill``, ``timeout`` or a batch scheduler, sent to the run's process alone) never
@@ -86,7 +87,7 @@ def exit_with_parent(interval: float = PARENT_CHECK_S) -> None:
     import threading
     import time
 
-    parent = os.getppid()
+    parent = os.getppid() if parent is None else parent
 
     def watch():
         while True:
@@ -97,9 +98,9 @@ def exit_with_parent(interval: float = PARENT_CHECK_S) -> None:
     threading.Thread(target=watch, name="eponet-parent-watch", daemon=True).start()
 
 
-def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int, reports) -> None:
+def _start_worker(spec: Spec, cache_root: str, cache_enabled: bool, threads: int, reports, parent: int) -> None:
     global _WORKER
-    exit_with_parent()
+    exit_with_parent(parent)  # (the run's pid, not the worker's parent now: the run may be gone already)
     limit_threads(threads, overlapped=spec.run.threads)
     from .progress import forward_to, set_quiet
 
@@ -182,7 +183,7 @@ def run_in_workers(pipeline, sources: list[SequenceSource], workers: int, finish
     reports = context.Queue()
     with listening(reports), ProcessPoolExecutor(
             workers, mp_context=context, initializer=_start_worker,
-            initargs=(pipeline.spec, str(cache.root), cache.enabled, threads, reports)) as pool:
+            initargs=(pipeline.spec, str(cache.root), cache.enabled, threads, reports, os.getpid())) as pool:
         futures = {pool.submit(_work, source): source for source in sources}
         error = None
         try:

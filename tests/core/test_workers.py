@@ -46,7 +46,7 @@ import multiprocessing, sys, time
 from eponet.core.workers import exit_with_parent
 
 def child(path):
-    exit_with_parent(0.05)
+    exit_with_parent(interval=0.05)
     open(path, "w").write("started")
     time.sleep(60)
 
