@@ -269,9 +269,7 @@ def assemble_trajectories(frames: list[TrackFrame]) -> tuple[Trajectories, np.nd
     first = offsets[:-1] - start  # a trajectory's point of frame k is at first + k
     labels = np.empty((len(frames),) + frames[0].labels.shape, np.int32)
     for k, (frame, loc) in enumerate(zip(frames, local)):
-        at = first[loc]
-        at += k
-        words[at] = point_words(frame.positions)
+        words[first[loc] + k] = point_words(frame.positions)
         labels[k] = index.positions(frame.labels)  # (a table lookup; a binary search per pixel cost 3x more)
     return Trajectories(start=start, length=length, offsets=offsets, positions=positions, labels=labels), ids
 

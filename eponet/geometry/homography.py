@@ -158,6 +158,25 @@ def _columns(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(x[:, 0], dtype=dtype), np.ascontiguousarray(x[:, 1], dtype=dtype)
 
 
+def _in_blocks(xs, buffers: int):
+    """What the per-point distance kernels loop over: their output ``total`` (zeros (N,), float32 for float32
+    points, else float64) and an iterator over blocks of :data:`BLOCK` points, each yielding the point sets' (x, y)
+    columns (:func:`_columns`), the block's slice of ``total`` and ``buffers`` scratch arrays of its length
+    (preallocated once: fresh temporaries cost a page fault per 4 kB)."""
+    points = [np.asarray(x) for x in xs]
+    dtype = np.float32 if points[0].dtype == np.float32 else np.float64
+    n = len(points[0])
+    total = np.zeros(n, dtype)
+    scratch = [np.empty(min(n, BLOCK), dtype) for _ in range(buffers)]
+
+    def blocks():
+        for start in range(0, n, BLOCK):
+            part = total[start : start + BLOCK]
+            yield [_columns(x[start : start + BLOCK]) for x in points], part, [b[: len(part)] for b in scratch]
+
+    return total, blocks()
+
+
 def _transfer_distance(h: np.ndarray, a: tuple, b: tuple, total: np.ndarray, buf: list) -> None:
     """``total += |b - H a|`` for one homography and points given as contiguous (x, y) columns, in place with
     the preallocated buffers ``buf`` (fresh temporaries of this size cost a page fault per 4 kB)."""
@@ -202,14 +221,9 @@ def homography_triplet_distance(
     h32 = h31 @ np.linalg.inv(h21)
     transfers = [(h, a, b) for h0, a, b in ((h21, 0, 1), (h31, 0, 2), (h32, 1, 2))
                  for h, a, b in ((h0, a, b), (np.linalg.inv(h0), b, a))]
-    points = [np.asarray(x) for x in (x1, x2, x3)]
-    dtype = np.float32 if points[0].dtype == np.float32 else np.float64
-    total = np.zeros(len(points[0]), dtype)
-    buf = [np.empty(min(len(total), BLOCK), dtype) for _ in range(4)]
-    for start in range(0, len(total), BLOCK):
-        cols = [_columns(x[start : start + BLOCK]) for x in points]
-        part = total[start : start + BLOCK]
+    total, blocks = _in_blocks((x1, x2, x3), 4)
+    for cols, part, buf in blocks:
         for h, a, b in transfers:
-            _transfer_distance(h, cols[a], cols[b], part, [x[: len(part)] for x in buf])
+            _transfer_distance(h, cols[a], cols[b], part, buf)
     total[np.isnan(total)] = np.inf  # a point mapped to infinity
     return total

@@ -25,7 +25,7 @@ from .epipolar import (
     sampson_error,
     skew,
 )
-from .homography import BLOCK, _basis, _columns
+from .homography import _basis, _in_blocks
 from .normalise import hartley_normalisation
 
 __all__ = [
@@ -427,19 +427,12 @@ def triplet_epipolar_distance(
     -------
     array (N,)
     """
-    points = [np.asarray(x) for x in (x1, x2, x3)]
-    dtype = np.float32 if points[0].dtype == np.float32 else np.float64
-    n = len(points[0])
-    total = np.zeros(n, dtype)
     mats = [([float(v) for v in np.asarray(f, np.float64).ravel()], a, b)
             for f, a, b in ((f21, 0, 1), (f31, 0, 2), (f32, 1, 2))]
-    # in blocks of BLOCK points, with preallocated buffers: this runs on every trajectory of every triplet,
-    # fresh temporaries of this size cost a page fault per 4 kB, and a block's stay in the cache
-    bufs = [np.empty(min(n, BLOCK), dtype) for _ in range(5)]
-    for start in range(0, n, BLOCK):
-        cols = [_columns(x[start : start + BLOCK]) for x in points]
-        part = total[start : start + BLOCK]
-        l0, l1, alg, tmp, acc = (b[: len(part)] for b in bufs)
+    # in blocks of BLOCK points with preallocated buffers: this runs on every trajectory of every triplet, and a
+    # block's temporaries stay in the cache
+    total, blocks = _in_blocks((x1, x2, x3), 5)
+    for cols, part, (l0, l1, alg, tmp, acc) in blocks:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             for f, a, b in mats:
                 (ax, ay), (bx, by) = cols[a], cols[b]

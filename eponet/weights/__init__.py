@@ -11,7 +11,7 @@ import yaml
 from eponet.core.errors import MissingWeights, SpecError
 
 __all__ = ["WEIGHTS_DIR", "BuiltinWeights", "builtin_weights", "sha256_of", "weights_path", "resolve_weights",
-           "weights_list"]
+           "weights_list", "load_each"]
 
 WEIGHTS_DIR = Path(__file__).resolve().parent
 
@@ -99,3 +99,12 @@ def weights_list(weights: str | list[str], sha256: str | list[str] | None) -> li
         raise SpecError(f"sha256: {count} checksum(s) for {len(names)} weights files; give one per file, in the "
                         "same order, or none")
     return list(zip(names, digests))
+
+
+def load_each(load, weights: str | list[str], sha256: str | list[str] | None) -> tuple[list, str | list[str]]:
+    """A stage's networks from its ``weights`` and ``sha256`` parameters (:func:`weights_list`), each by
+    ``load(name, expected sha256) -> (network, sha256)``; returns the networks and the sha256 the stage records:
+    a list for a list of weights, else the one digest."""
+    loaded = [load(name, digest) for name, digest in weights_list(weights, sha256)]
+    digests = [digest for _, digest in loaded]
+    return [network for network, _ in loaded], digests if isinstance(weights, list) else digests[0]

@@ -11,7 +11,7 @@ from eponet.core.errors import MissingWeights, SpecError, StageError
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
 from eponet.plugins.fusion import example_params, threshold_problems, window_problems
-from eponet.weights import resolve_weights, weights_list, weights_path
+from eponet.weights import load_each, resolve_weights, weights_list, weights_path
 
 __all__ = ["ConvGRUStage", "load_fusion"]
 
@@ -63,10 +63,7 @@ class ConvGRUStage:
                  selftrain_l2: float = 1e-3, selftrain_foreground_share: float = 0.0,
                  selftrain_foreground_floor: float = 0.5, selftrain_background_motion: float | None = None,
                  motion_support: float | None = None):
-        loaded = [load_fusion(name, digest) for name, digest in weights_list(weights, sha256)]
-        self.models = [model for model, _ in loaded]
-        digests = [digest for _, digest in loaded]
-        self.sha256 = digests if isinstance(weights, list) else digests[0]
+        self.models, self.sha256 = load_each(load_fusion, weights, sha256)
         channels = {model.appearance_channels for model in self.models}
         if len(channels) > 1:
             raise StageError(f"fusion convgru: the weights expect different appearance channels ({sorted(channels)}); "
@@ -90,14 +87,15 @@ class ConvGRUStage:
             raise StageError(f"fusion convgru: the weights expect {expected} appearance channels, got features of "
                              f"shape {features.shape}; use the appearance stage the fusion was trained with")
         out = np.zeros(saliency.shape, np.float32)
+        maps = torch.from_numpy(np.ascontiguousarray(saliency, np.float32))  # (no copy of a float32 map)
         for model in self.models:
             model = model.to(self.device)
             logits = video_logits(model, features, saliency, window=self.window, overlap=self.overlap,
                                   blend=self.blend, device=self.device)
             with torch.inference_mode():
                 for start in range(0, len(out), 16):  # upsample a few frames at a time: bounded temporaries
-                    maps = torch.from_numpy(np.ascontiguousarray(saliency[start : start + 16], np.float32))
-                    chunk = model.frame_logits(logits[start : start + 16].to(self.device), maps.to(self.device))
+                    chunk = model.frame_logits(logits[start : start + 16].to(self.device),
+                                               maps[start : start + 16].to(self.device))
                     out[start : start + len(chunk)] += torch.sigmoid(chunk).cpu().numpy()
         if len(self.models) > 1:
             out /= len(self.models)
@@ -132,7 +130,7 @@ def _check_stages(params: dict, stages: dict) -> list[str]:
     if "appearance" not in stages:
         return []
     used, problems = stages["appearance"][0], []
-    for name in params["weights"] if isinstance(params["weights"], list) else [params["weights"]]:
+    for name, _ in weights_list(params["weights"], None):
         try:  # (``_check`` has verified the files' checksums already: their paths suffice, not a second sha256)
             checkpoint = torch.load(weights_path(name, kind="fusion"), map_location="cpu", weights_only=True)
         except Exception:  # (load_fusion reports an unreadable file when the stage is built)

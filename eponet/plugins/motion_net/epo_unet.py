@@ -12,7 +12,7 @@ from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.motion import mirror_motion_images
 from eponet.core.params import Param
 from eponet.core.progress import track
-from eponet.weights import resolve_weights, weights_list
+from eponet.weights import load_each, resolve_weights, weights_list
 
 __all__ = ["EpoUNetStage", "load_unet"]
 
@@ -53,10 +53,8 @@ class EpoUNetStage:
                  batch_size: int = 8, device: str = "auto", flip: bool = False, precision: str = "float32"):
         from eponet.nets import InferenceUNet
 
-        loaded = [load_unet(name, digest) for name, digest in weights_list(weights, sha256)]
-        self.models = [InferenceUNet(model) for model, _ in loaded]
-        digests = [digest for _, digest in loaded]
-        self.sha256 = digests if isinstance(weights, list) else digests[0]
+        models, self.sha256 = load_each(load_unet, weights, sha256)
+        self.models = [InferenceUNet(model) for model in models]
         self.batch_size = batch_size
         self.device = torch_device(device)
         self.flip = flip
