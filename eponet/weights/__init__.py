@@ -9,6 +9,7 @@ from pathlib import Path
 import yaml
 
 from eponet.core.errors import MissingWeights, SpecError
+from eponet.core.registry import nearest
 
 __all__ = ["WEIGHTS_DIR", "BuiltinWeights", "builtin_weights", "sha256_of", "weights_path", "resolve_weights",
            "weights_list", "load_each"]
@@ -54,8 +55,11 @@ def weights_path(name_or_path: str, *, kind: str | None = None) -> Path:
         return entry.file
     path = Path(name_or_path).expanduser()
     if not path.suffix and not path.exists():
-        known = ", ".join(n for n, e in catalogue.items() if kind is None or e.kind == kind) or "none"
-        raise MissingWeights(f"weights {name_or_path!r}: neither a built-in name (built-in: {known}) nor a file")
+        names = [n for n, e in catalogue.items() if kind is None or e.kind == kind]
+        hint = nearest(path.name, names)
+        raise MissingWeights(f"weights {name_or_path!r}: neither a built-in name"
+                             f"{f' (did you mean {hint!r}?)' if hint else ''} (built-in: {', '.join(names) or 'none'}) "
+                             "nor a file")
     return path
 
 

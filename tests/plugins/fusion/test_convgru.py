@@ -272,8 +272,10 @@ def test_shipped_fusion_weights_match_their_catalogue_checksum_and_stay_small():
 
 
 def test_missing_builtin_weights_is_a_clear_error(tmp_path):
-    with pytest.raises(MissingWeights, match="'epo-plus-davos': neither a built-in name"):
+    with pytest.raises(MissingWeights, match="'epo-plus-davos': neither a built-in name \\(did you mean 'epo-plus-davis'\\?\\)"):
         ConvGRUStage(weights="epo-plus-davos")
+    with pytest.raises(MissingWeights, match="neither a built-in name \\(built-in: epo-plus-davis-lite2, "):
+        ConvGRUStage(weights="zzz")  # nothing near: no hint
     _save_weights(tmp_path / "fusion.pt", _model())
     with pytest.raises(MissingWeights, match="checksum mismatch"):
         ConvGRUStage(weights=str(tmp_path / "fusion.pt"), sha256="0" * 64)
