@@ -5,6 +5,8 @@ line of eponet's own error type."""
 from __future__ import annotations
 
 import os
+import threading
+import time
 from contextlib import contextmanager
 
 from .cache import Cache
@@ -84,9 +86,6 @@ def exit_with_parent(parent: int | None = None, interval: float = PARENT_CHECK_S
     (no cleanup: its own children, the CRF helper, see their pipes close and end too). The re-run resumes from
     what was complete: each output file is written atomically, and a sequence counts as done only when the run
     recorded it."""
-    import threading
-    import time
-
     parent = os.getppid() if parent is None else parent
 
     def watch():
