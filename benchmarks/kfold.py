@@ -234,13 +234,14 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             teacher: Path | None = None, teacher_seeds: tuple[int, ...] = (0, 1), teacher_share: float = 0.5,
             recipe_data: list[dict] | None = None, recipe_phases: list[dict] | None = None,
             fusion_maps: str = "own", appearance: dict | None = None,
-            fusion_seeds: tuple[int, ...] = (0,)) -> dict[str, dict]:
+            fusion_seeds: tuple[int, ...] = (0,), recipe_dropout: dict | None = None) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
     (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns, and onto
     the fusion recipe's with ``plus``;
-    ``recipe_model``: onto its ``model`` section, e.g. ``flow_centring``). ``plus``: then
+    ``recipe_model``: onto its ``model`` section, e.g. ``flow_centring``; ``recipe_dropout``: onto its
+    ``input_dropout`` section, e.g. ``probability=0`` for ``inputs=ed``). ``plus``: then
     train each fold's EpO+ fusion on that fold's frozen network (into ``out/fold<i>/fusion``) and score the
     ``epo+`` preset with both. ``run``: the spec's ``run`` settings; ``only``: score these sequences only;
     ``crf_settings``: merged onto the refiner (the preset's, or the one ``refiner`` names); ``run_seed``: the held-out
@@ -264,6 +265,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         doc = recipe_without(split[i])
         doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})
         doc["model"].update(recipe_model or {})
+        doc["input_dropout"].update(recipe_dropout or {})
         doc["seed"] = seed
         if recipe_data:
             doc["phases"][0]["data"] = [doc["phases"][0]["data"], *fold_sources(recipe_data, i, split[i])]
@@ -383,6 +385,9 @@ def main(argv=None) -> int:
                         help="key=value merged onto the training recipe's rigidity stage (the ED the folds learn)")
     parser.add_argument("--recipe-model", nargs="*", default=[],
                         help="key=value merged onto the training recipe's model section, e.g. flow_centring=rigid")
+    parser.add_argument("--recipe-dropout", nargs="*", default=[],
+                        help="key=value merged onto the training recipe's input_dropout section, e.g. probability=0 "
+                        "(with --recipe-model inputs=ed: the ED channel is the only input)")
     parser.add_argument("--seeds", default="0",
                         help="epo: comma-separated training seeds; the held-out sequences run the mean of the seeds' "
                         "networks (0,1: a pair, as the epo+ preset runs; the first seed's are fold<i>/weights.pt)")
@@ -461,6 +466,7 @@ def main(argv=None) -> int:
         preset = "epo+" if plus else args.preset
         recipe_rigidity = key_values(args.recipe_rigidity)
         recipe_model = key_values(args.recipe_model)
+        recipe_dropout = key_values(args.recipe_dropout)
         run = key_values(args.run)
         seeds = tuple(int(s) for s in args.seeds.split(","))
         fusion_seeds = tuple(int(s) for s in args.fusion_seed.split(","))
@@ -469,13 +475,15 @@ def main(argv=None) -> int:
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
                                args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share,
-                               recipe_data, recipe_phases, args.fusion_maps, appearance, fusion_seeds)
+                               recipe_data, recipe_phases, args.fusion_maps, appearance, fusion_seeds, recipe_dropout)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
             meta["recipe_rigidity"] = recipe_rigidity
         if recipe_model:
             meta["recipe_model"] = recipe_model
+        if recipe_dropout:
+            meta["recipe_dropout"] = recipe_dropout
         if recipe_data:
             meta["recipe_data"] = recipe_data
         if recipe_phases:
