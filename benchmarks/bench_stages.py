@@ -116,7 +116,7 @@ def multiply_adds(model, shape: tuple[int, int]) -> int:
     F.conv2d, F.linear = counted_conv, counted_linear
     try:
         with torch.inference_mode():
-            model(torch.zeros(1, len(model.channels), *shape))
+            model(torch.zeros(1, model.input_channels, *shape))
     finally:
         F.conv2d, F.linear = conv, linear
     return count

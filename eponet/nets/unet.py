@@ -6,9 +6,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from eponet.core.motion import ED_ENCODINGS, FLOW_CENTRINGS, encode_ed
+from eponet.core.motion import ED_ENCODINGS, FLOW_CENTRINGS, FLOW_SCALE, encode_ed
 
-__all__ = ["EpoUNet", "INPUT_CHANNELS", "FLOW_CENTRINGS", "InferenceUNet", "affine_flow_residual", "centre_flow"]
+__all__ = ["EpoUNet", "INPUT_CHANNELS", "FLOW_CENTRINGS", "InferenceUNet", "affine_flow_residual", "centre_flow",
+           "flow_spread"]
 
 #: Which channels of a (dx, dy, ED) motion image each input modality uses.
 INPUT_CHANNELS = {"ed+flow": (0, 1, 2), "flow": (0, 1), "ed": (2,)}
@@ -65,6 +66,23 @@ def affine_flow_residual(motion_images: torch.Tensor, refits: int = 1) -> torch.
     return out
 
 
+def flow_spread(motion_images: torch.Tensor, window: int) -> torch.Tensor:
+    """How incoherent the flow is around each pixel: ``ln(1 + s)`` with ``s`` the standard deviation in pixels (of
+    the processing resolution) of the flow vectors in the ``window`` x ``window`` pixels around it,
+    ``s = sqrt(var(dx) + var(dy))`` (the window cut at the frame's border). Float ``(B, 1, H, W)`` from (dx, dy, ED)
+    motion images ``(B, 3, H, W)``.
+
+    Near 0 inside anything that moves as one piece (a rigid background, an object's body, whatever the camera
+    does: a constant or smooth flow), large on dynamic texture (water, spray, smoke, foliage), where the flow of
+    neighbouring pixels disagrees, and along motion boundaries. Unchanged by a constant added to the flow (a
+    pan, :func:`centre_flow`) and by a left-right mirror.
+    """
+    flow = motion_images[:, :2].float() * FLOW_SCALE
+    pool = lambda x: F.avg_pool2d(x, window, stride=1, padding=window // 2, count_include_pad=False)  # noqa: E731
+    variance = (pool(flow * flow) - pool(flow) ** 2).clamp_(min=0.0).sum(dim=1, keepdim=True)
+    return torch.log1p(variance.sqrt_()).to(motion_images.dtype)
+
+
 #: What ``flow_centring`` subtracts from the flow channels (:data:`eponet.core.motion.FLOW_CENTRINGS`).
 _CENTRING = {"rigid": centre_flow, "affine": affine_flow_residual}
 
@@ -90,11 +108,13 @@ class EpoUNet(nn.Module):
     the foreground probability. :meth:`select_inputs` turns the pipeline's motion images into that input,
     saturating the ED channel as ``ed_encoding`` says (``clip``, the paper's, or ``log``) and centring the flow
     channels as ``flow_centring`` says (``none``, the paper's; ``rigid``: :func:`centre_flow`; ``affine``:
-    :func:`affine_flow_residual`).
+    :func:`affine_flow_residual`). With ``flow_spread`` > 0 the input gets one more channel, last:
+    :func:`flow_spread` over that many pixels square (of the flow before any centring).
     """
 
     def __init__(self, *, inputs: str = "ed+flow", depth: int = 4, widths: tuple[int, ...] = (16, 32, 64, 128),
-                 head_channels: int = 128, ed_encoding: str = "clip", flow_centring: str = "none"):
+                 head_channels: int = 128, ed_encoding: str = "clip", flow_centring: str = "none",
+                 flow_spread: int = 0):
         super().__init__()
         if inputs not in INPUT_CHANNELS:
             raise ValueError(f"inputs: expected one of {', '.join(INPUT_CHANNELS)}, got {inputs!r}")
@@ -102,15 +122,18 @@ class EpoUNet(nn.Module):
             raise ValueError(f"ed_encoding: expected one of {', '.join(ED_ENCODINGS)}, got {ed_encoding!r}")
         if flow_centring not in FLOW_CENTRINGS:
             raise ValueError(f"flow_centring: expected one of {', '.join(FLOW_CENTRINGS)}, got {flow_centring!r}")
+        if flow_spread != 0 and (flow_spread < 3 or flow_spread % 2 == 0):
+            raise ValueError(f"flow_spread: expected 0 (off) or an odd window of at least 3 pixels, got {flow_spread}")
         if len(widths) < depth:
             raise ValueError(f"widths: need at least {depth} values for depth {depth}, got {list(widths)}")
         widths = tuple(int(w) for w in widths[:depth])
         self.config = {"inputs": inputs, "depth": depth, "widths": list(widths), "head_channels": head_channels,
-                       "ed_encoding": ed_encoding, "flow_centring": flow_centring}
+                       "ed_encoding": ed_encoding, "flow_centring": flow_centring, "flow_spread": int(flow_spread)}
         self.channels = INPUT_CHANNELS[inputs]
         self.ed_encoding = ed_encoding
         self.flow_centring = flow_centring
-        cin = len(self.channels)
+        self.flow_spread = int(flow_spread)
+        cin = self.input_channels
         self.encoder = nn.ModuleList()
         for width in widths:
             self.encoder.append(_conv_bn_relu(cin, width))
@@ -145,17 +168,23 @@ class EpoUNet(nn.Module):
             x = block(torch.cat([x, skip], dim=1))
         return self.classifier(self.head(x))
 
+    @property
+    def input_channels(self) -> int:
+        """Channels of the input :meth:`select_inputs` makes."""
+        return len(self.channels) + (1 if self.flow_spread else 0)
+
     def select_inputs(self, motion_images: torch.Tensor) -> torch.Tensor:
         """The channels of full (dx, dy, ED) motion images ``(B, 3, H, W)`` that this network reads, the ED
         channel (scaled over a window of frames, unsaturated) saturated by ``ed_encoding``, the flow centred by
-        ``flow_centring``. A new tensor."""
+        ``flow_centring``, then the :func:`flow_spread` channel where ``flow_spread`` > 0. A new tensor."""
+        spread = flow_spread(motion_images, self.flow_spread) if self.flow_spread else None
         if self.flow_centring != "none" and 0 in self.channels:
             motion_images = _CENTRING[self.flow_centring](motion_images)
         x = motion_images[:, list(self.channels)]
         if 2 in self.channels:
             ed = self.channels.index(2)
             x[:, ed] = encode_ed(x[:, ed], self.ed_encoding)
-        return x
+        return x if spread is None else torch.cat([x, spread], dim=1)
 
 
 def _folded(block: nn.Sequential) -> tuple[torch.Tensor, torch.Tensor]:
@@ -183,7 +212,7 @@ class InferenceUNet(nn.Module):
     def __init__(self, model: EpoUNet):
         super().__init__()
         self.config, self.channels, self.ed_encoding = dict(model.config), model.channels, model.ed_encoding
-        self.flow_centring = model.flow_centring
+        self.flow_centring, self.flow_spread = model.flow_centring, model.flow_spread
         frozen = lambda tensor: nn.Parameter(tensor.contiguous(), requires_grad=False)  # noqa: E731
         self.convs = nn.ParameterList()  # encoder blocks, then the bottleneck: weight, bias
         for block in [*model.encoder, model.bottleneck]:
@@ -237,3 +266,4 @@ class InferenceUNet(nn.Module):
         return torch.cat(blocks).reshape(batch, height, width, -1).permute(0, 3, 1, 2)
 
     select_inputs = EpoUNet.select_inputs
+    input_channels = EpoUNet.input_channels

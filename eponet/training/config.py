@@ -39,6 +39,9 @@ _MODEL = (
           "paper), rigid (the median flow of the pixels whose ED is at most the frame's median) or affine "
           "(an affine flow field fitted to those pixels)",
           choices=FLOW_CENTRINGS),
+    Param("flow_spread", "int", 0, "window in pixels (odd) of one more input channel: the local spread of the flow, "
+          "ln(1 + std of the flow vectors around each pixel), large on dynamic texture such as water (0: off)",
+          minimum=0),
 )
 _OPTIMIZER = (
     Param("name", "choice", "sgd", "optimiser", choices=("sgd", "adam", "adamw", "rmsprop")),
@@ -309,6 +312,9 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
         if not (isinstance(widths, list) and all(isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in widths)
                 and len(widths) >= model.get("depth", 4)):
             problems.append(f"model.widths: expected a list of at least depth={model.get('depth')} positive integers, got {widths!r}")
+        spread = model.get("flow_spread", 0)
+        if isinstance(spread, int) and spread != 0 and (spread < 3 or spread % 2 == 0):
+            problems.append(f"model.flow_spread: expected 0 (off) or an odd window of at least 3 pixels, got {spread}")
     elif isinstance(model.get("kernel_size"), int) and model["kernel_size"] % 2 == 0:
         problems.append(f"model.kernel_size: expected an odd integer, got {model['kernel_size']}")
     optimizer = section("optimizer", schemas["optimizer"])

@@ -180,7 +180,8 @@ def model_card(config: TrainConfig, summary: dict, history: list[dict]) -> str:
         f"- architecture: EpO U-Net, inputs {m['inputs']}, depth {m['depth']}, widths {list(m['widths'])[:m['depth']]}, "
         f"{m['head_channels']} channels before the 1x1 classifier"
         + (f", ED encoding {m.get('ed_encoding', 'clip')}" if m["inputs"] != "flow" else "")
-        + (f", flow centring {m['flow_centring']}" if m.get("flow_centring", "none") != "none" else ""),
+        + (f", flow centring {m['flow_centring']}" if m.get("flow_centring", "none") != "none" else "")
+        + (f", flow spread over {m['flow_spread']} px" if m.get("flow_spread", 0) else ""),
         trained_line(config, summary),
         f"- optimiser: {o['name']}, lr {o['lr']} x {o['gamma']} every {o['step_epochs']} epochs of a phase, "
         f"momentum {o['momentum']}, weight decay {o['weight_decay']}, batch {o['batch_size']}",

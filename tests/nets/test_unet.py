@@ -2,7 +2,8 @@ import pytest
 import torch
 
 from eponet.nets import EpoUNet, InferenceUNet
-from eponet.nets.unet import HEAD_BLOCK
+from eponet.core.motion import FLOW_SCALE, mirror_motion_images
+from eponet.nets.unet import HEAD_BLOCK, flow_spread
 
 
 @pytest.mark.parametrize("inputs, channels", [("ed+flow", 3), ("flow", 2), ("ed", 1)])
@@ -88,6 +89,43 @@ def test_affine_flow_centring_removes_a_zoom_and_roll_of_the_camera_but_keeps_th
     flat[0, :2] = field
     assert EpoUNet(flow_centring="affine").select_inputs(flat)[0, :2].abs().max() < 1e-4
     assert InferenceUNet(EpoUNet(flow_centring="affine")).select_inputs(images).equal(x)
+
+
+def test_flow_spread_is_the_local_std_of_the_flow_in_pixels_zero_where_it_moves_as_one_piece():
+    # a smooth pan (dx 3 px) with a 12 x 12 patch of chaotic flow (water); ED random
+    generator = torch.Generator().manual_seed(0)
+    images = torch.zeros(2, 3, 40, 48)
+    images[:, 0] = 3.0 / FLOW_SCALE
+    images[:, :2, 10:22, 20:32] = torch.randn(2, 2, 12, 12, generator=generator) * 4.0 / FLOW_SCALE
+    images[:, 2] = torch.rand(2, 40, 48, generator=generator)
+    spread = flow_spread(images, 5)
+    assert spread.shape == (2, 1, 40, 48)
+    assert spread[:, 0, 30:, :].abs().max() < 1e-4  # a constant flow, however fast, has none
+    patch = images[0, :2, 12:17, 22:27] * FLOW_SCALE  # a window wholly inside the patch: its std, exactly
+    expected = torch.log1p(patch.flatten(1).var(dim=1, unbiased=False).sum().sqrt())
+    assert spread[0, 0, 14, 24].item() == pytest.approx(expected.item(), rel=1e-4)
+    assert spread[:, 0, 12:20, 22:30].min() > 1.0  # ln(1 + ~5.6 px)
+    shifted = images.clone()
+    shifted[:, :2] += torch.tensor([0.7, -0.3]).view(1, 2, 1, 1)  # another pan: the same spread
+    assert torch.allclose(flow_spread(shifted, 5), spread, atol=1e-4)
+    mirrored = torch.from_numpy(mirror_motion_images(images.numpy()))
+    assert torch.allclose(flow_spread(mirrored, 5), spread.flip(-1), atol=1e-5)
+
+
+def test_a_network_with_flow_spread_reads_it_as_a_last_channel_of_the_uncentred_flow():
+    images = torch.randn(2, 3, 24, 32)
+    model = EpoUNet(flow_centring="rigid", flow_spread=7, depth=2, widths=(4, 8), head_channels=8).eval()
+    x = model.select_inputs(images)
+    assert model.input_channels == 4 and x.shape == (2, 4, 24, 32) and model.config["flow_spread"] == 7
+    assert torch.equal(x[:, :3], EpoUNet(flow_centring="rigid").select_inputs(images))
+    assert torch.equal(x[:, 3:], flow_spread(images, 7))
+    assert EpoUNet(inputs="ed", flow_spread=3).select_inputs(images).shape[1] == 2
+    with torch.no_grad():
+        assert model(x).shape == (2, 1, 24, 32)
+        assert torch.allclose(InferenceUNet(model)(InferenceUNet(model).select_inputs(images)), model(x), atol=1e-4)
+    for bad in (1, 4):
+        with pytest.raises(ValueError, match="flow_spread: expected 0 \\(off\\) or an odd window"):
+            EpoUNet(flow_spread=bad)
 
 
 def test_head_has_the_papers_128_channels():
