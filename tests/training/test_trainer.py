@@ -77,6 +77,26 @@ def test_the_ed_encoding_is_trained_exported_and_loaded(tmp_path):
     assert EpoUNetStage(weights=summary["weights"], device="cpu").models[0].ed_encoding == "log"
 
 
+def test_a_network_with_flow_spread_is_trained_exported_and_loaded(tmp_path):
+    from eponet.core.errors import SpecError
+    from eponet.plugins.motion_net.epo_unet import EpoUNetStage
+    from eponet.training.config import parse_train_config
+
+    data = easy_sequences(count=2, frames=6)
+    config = _config(tmp_path, epochs=1)
+    config.model["flow_spread"] = 5
+    summary = _trainer(config, data).run()
+    assert torch.load(summary["weights"], weights_only=True)["config"]["flow_spread"] == 5
+    assert "flow spread over 5 px" in (tmp_path / "train" / "model-card.md").read_text()
+    stage = EpoUNetStage(weights=summary["weights"], device="cpu")
+    assert stage.models[0].flow_spread == 5
+    assert stage.predict(data[0].motion.astype(np.float32)).shape == data[0].masks.shape
+    document = {"task": "motion_net", "model": {"flow_spread": 4}, "phases": [{"name": "a", "data": {"davis": {
+        "root": "."}}, "epochs": 1}], "output": {"dir": "out"}}
+    with pytest.raises(SpecError, match=r"model.flow_spread: expected 0 \(off\) or an odd window of at least 3"):
+        parse_train_config(document, base_dir=tmp_path)
+
+
 def test_resume_continues_exactly(tmp_path):
     data = easy_sequences(count=2, frames=6)
     straight = _trainer(_config(tmp_path / "a", epochs=3), data)
