@@ -145,13 +145,18 @@ def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
     assert_shipped_weights("epo-davis-v5-seed1", "motion_net")
     assert len(EpoUNetStage(weights=["epo-davis-v5", "epo-davis-v5-seed1"]).models) == 2  # the pair the epo preset ran before 2026-12-06
     assert_shipped_weights("epo-davis-v5-centred", "motion_net")
-    plain, centred = EpoUNetStage(weights=["epo-davis-v5", "epo-davis-v5-centred"]).models  # the epo preset's pair
+    plain, centred = EpoUNetStage(weights=["epo-davis-v5", "epo-davis-v5-centred"]).models  # epo's pair until 2026-12-06
     assert (plain.flow_centring, centred.flow_centring) == ("none", "rigid")
+    assert_shipped_weights("epo-davis-v5-spread", "motion_net")
+    spread, centred = EpoUNetStage(weights=["epo-davis-v5-spread", "epo-davis-v5-centred"]).models  # the epo preset's
+    assert (spread.flow_spread, spread.flow_centring, centred.flow_spread) == (9, "none", 0)
+    assert spread.input_channels == 4 and spread.convs[0].shape[1] == 4  # first convolution: (dx, dy, ED, spread)
 
 
 def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
     """v5 was trained on shrunk means (``prior_groups`` 4, the recipe's) and the epo and epo-st presets paint them
-    and average v5 with its flow-centred twin (held out better than v5 alone, where two v5 seeds were not); epo+
+    average the v5 recipe with one more channel (the flow's local spread) and v5's flow-centred twin (held out better
+    than v5 with that twin, which was better than v5 alone, where two v5 seeds were not); epo+
     runs v5 alone, whose fusion (epo-plus-davis-lite2) was trained on v5's maps of the shrunk means, with GRIC and
     no border prior."""
 
@@ -160,9 +165,9 @@ def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
 
     registry = get_registry()
     epo = registry.resolve_preset("epo")
-    assert epo["motion_net"]["weights"] == ["epo-davis-v5", "epo-davis-v5-centred"]
+    assert epo["motion_net"]["weights"] == ["epo-davis-v5-spread", "epo-davis-v5-centred"]
     assert epo["rigidity"]["prior_groups"] == 4
-    for name in ("epo-davis-v5", "epo-davis-v5-seed1", "epo-davis-v5-centred"):
+    for name in ("epo-davis-v5", "epo-davis-v5-seed1", "epo-davis-v5-centred", "epo-davis-v5-spread"):
         saved = torch.load(builtin_weights()[name].file, map_location="cpu", weights_only=False)
         assert saved["meta"]["spec"]["geometry"]["stages"]["rigidity"]["prior_groups"] == 4
     selftrained = registry.resolve_preset("epo-st")
