@@ -74,8 +74,8 @@ def flow_spread(motion_images: torch.Tensor, window: int) -> torch.Tensor:
 
     Near 0 inside anything that moves as one piece (a rigid background, an object's body, whatever the camera
     does: a flow nearly constant across the window), large on dynamic texture (water, spray, smoke, foliage),
-    where the flow of neighbouring pixels disagrees, and along motion boundaries. Unchanged by a constant added to the flow (a
-    pan, :func:`centre_flow`) and by a left-right mirror.
+    where the flow of neighbouring pixels disagrees, and along motion boundaries. Unchanged by a constant added to
+    the flow (a pan, :func:`centre_flow`) and by a left-right mirror.
     """
     flow = motion_images[:, :2].float() * FLOW_SCALE
     flow = flow - flow.mean(dim=(2, 3), keepdim=True)  # the same spread, smaller sums of squares
