@@ -154,11 +154,11 @@ def test_shipped_weights_match_their_catalogue_checksum_and_stay_small():
 
 
 def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
-    """v5 was trained on shrunk means (``prior_groups`` 4, the recipe's) and the epo and epo-st presets paint them
-    average the v5 recipe with one more channel (the flow's local spread) and v5's flow-centred twin (held out better
-    than v5 with that twin, which was better than v5 alone, where two v5 seeds were not); epo+
-    runs v5 alone, whose fusion (epo-plus-davis-lite2) was trained on v5's maps of the shrunk means, with GRIC and
-    no border prior."""
+    """v5 was trained on shrunk means (``prior_groups`` 4, the recipe's), which the epo and epo-st presets paint;
+    they average the v5 recipe with one more channel (the flow's local spread) and v5's flow-centred twin (held out
+    better than v5 with that twin, which was better than v5 alone, where two v5 seeds were not). epo+ runs that
+    pair too (held out better than v5 alone under the same fusions), though its fusion (epo-plus-davis-lite2) was
+    trained on v5's maps of the shrunk means, with GRIC and no border prior."""
 
     from eponet.core.registry import get_registry
     from eponet.weights import builtin_weights
@@ -175,10 +175,11 @@ def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
     assert selftrained["rigidity"] == {"plugin": "trifocal", "prior_groups": 4}  # epo's ED (the stage's defaults)
     assert epo["rigidity"] == selftrained["rigidity"]
     fused = registry.resolve_preset("epo+")
-    assert fused["motion_net"] == {"plugin": "epo_unet", "weights": "epo-davis-v5"}  # float32, as measured
+    # epo's pair, in float32 as measured under the fusion
+    assert fused["motion_net"] == {"plugin": "epo_unet", "weights": ["epo-davis-v5-spread", "epo-davis-v5-centred"]}
     assert fused["rigidity"] == {"plugin": "trifocal", "degeneracy": "gric", "border_prior": 0.0, "prior_groups": 4}
     meta = torch.load(builtin_weights()[fused["fusion"]["weights"]].file, map_location="cpu", weights_only=True)["meta"]
-    assert meta["motion_net"]["params"]["weights"] == "epo-davis-v5"  # the maps it was trained on
+    assert meta["motion_net"]["params"]["weights"] == "epo-davis-v5"  # the maps it was trained on (not the pair's)
     assert meta["appearance"]["plugin"] == fused["appearance"]["plugin"] == "efficientnet_lite2"
     # the authors' CRF weights, on the box around the object only (held out: the same J, 39% less CRF time)
     assert fused["refiner"] == {"plugin": "densecrf", "max_size": 427, "crop_margin": 3.0}
