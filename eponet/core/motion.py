@@ -16,6 +16,7 @@ __all__ = [
     "FLOW_SCALE",
     "ED_ENCODINGS",
     "FLOW_CENTRINGS",
+    "flow_spread_problem",
     "ED_PERCENTILE",
     "ED_TARGET",
     "ED_FLOOR_PX",
@@ -45,6 +46,14 @@ ED_ENCODINGS = ("clip", "log")
 #: paper), ``rigid``: the median flow of the frame's pixels whose ED is at most the frame's median ED, or ``affine``:
 #: an affine flow field fitted to those pixels (``eponet.nets.unet.affine_flow_residual``).
 FLOW_CENTRINGS = ("none", "rigid", "affine")
+
+def flow_spread_problem(window) -> str | None:
+    """Why ``window`` is not a valid ``flow_spread`` of a motion network (``eponet.nets.unet.flow_spread``): None
+    for 0 (off) or an odd integer of at least 3 pixels, else the message."""
+    if window == 0 or (isinstance(window, int) and window >= 3 and window % 2 == 1):
+        return None
+    return f"expected 0 (off) or an odd window of at least 3 pixels, got {window}"
+
 
 #: Percentile of the ED values around a frame that sets its scale.
 ED_PERCENTILE = 95.0

@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from eponet.core.motion import ED_ENCODINGS, FLOW_CENTRINGS, FLOW_SCALE, encode_ed
+from eponet.core.motion import ED_ENCODINGS, FLOW_CENTRINGS, FLOW_SCALE, encode_ed, flow_spread_problem
 
 __all__ = ["EpoUNet", "INPUT_CHANNELS", "FLOW_CENTRINGS", "InferenceUNet", "affine_flow_residual", "centre_flow",
            "flow_spread"]
@@ -81,10 +81,16 @@ def flow_spread(motion_images: torch.Tensor, window: int) -> torch.Tensor:
     flow = flow - flow.mean(dim=(2, 3), keepdim=True)  # the same spread, smaller sums of squares
     height, width = flow.shape[-2:]
     sums = _box_sums(torch.cat([flow, flow * flow], dim=1), window)
-    counts = _box_sums(torch.ones(1, 1, height, width, device=flow.device), window)
-    means = sums / counts
+    means = sums / (_window_counts(height, window, flow.device)[:, None] * _window_counts(width, window, flow.device))
     variance = (means[:, 2:] - means[:, :2] ** 2).clamp_(min=0.0).sum(dim=1, keepdim=True)
     return torch.log1p(variance.sqrt_()).to(motion_images.dtype)
+
+
+def _window_counts(size: int, window: int, device) -> torch.Tensor:
+    """Float ``(size,)``: how many of the ``window`` positions centred on each index lie inside ``0 .. size - 1``."""
+    index = torch.arange(size, device=device)
+    half = window // 2
+    return ((index + half).clamp(max=size - 1) - (index - half).clamp(min=0) + 1).float()
 
 
 def _box_sums(x: torch.Tensor, window: int) -> torch.Tensor:
@@ -142,8 +148,8 @@ class EpoUNet(nn.Module):
             raise ValueError(f"ed_encoding: expected one of {', '.join(ED_ENCODINGS)}, got {ed_encoding!r}")
         if flow_centring not in FLOW_CENTRINGS:
             raise ValueError(f"flow_centring: expected one of {', '.join(FLOW_CENTRINGS)}, got {flow_centring!r}")
-        if flow_spread != 0 and (flow_spread < 3 or flow_spread % 2 == 0):
-            raise ValueError(f"flow_spread: expected 0 (off) or an odd window of at least 3 pixels, got {flow_spread}")
+        if flow_spread_problem(flow_spread):
+            raise ValueError(f"flow_spread: {flow_spread_problem(flow_spread)}")
         if len(widths) < depth:
             raise ValueError(f"widths: need at least {depth} values for depth {depth}, got {list(widths)}")
         widths = tuple(int(w) for w in widths[:depth])

@@ -10,7 +10,7 @@ from typing import Any
 import yaml
 
 from eponet.core.errors import SpecError
-from eponet.core.motion import ED_ENCODINGS, FLOW_CENTRINGS
+from eponet.core.motion import ED_ENCODINGS, FLOW_CENTRINGS, flow_spread_problem
 from eponet.core.params import Param, validate_params
 from eponet.core.spec import apply_overrides, default_cache_dir, parse_spec
 from eponet.core.registry import nearest
@@ -313,8 +313,8 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
                 and len(widths) >= model.get("depth", 4)):
             problems.append(f"model.widths: expected a list of at least depth={model.get('depth')} positive integers, got {widths!r}")
         spread = model.get("flow_spread", 0)
-        if isinstance(spread, int) and spread != 0 and (spread < 3 or spread % 2 == 0):
-            problems.append(f"model.flow_spread: expected 0 (off) or an odd window of at least 3 pixels, got {spread}")
+        if isinstance(spread, int) and flow_spread_problem(spread):
+            problems.append(f"model.flow_spread: {flow_spread_problem(spread)}")
     elif isinstance(model.get("kernel_size"), int) and model["kernel_size"] % 2 == 0:
         problems.append(f"model.kernel_size: expected an odd integer, got {model['kernel_size']}")
     optimizer = section("optimizer", schemas["optimizer"])
