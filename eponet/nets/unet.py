@@ -95,9 +95,8 @@ def _window_counts(size: int, window: int, device) -> torch.Tensor:
 
 def _box_sums(x: torch.Tensor, window: int) -> torch.Tensor:
     """Sums of ``x`` ``(B, C, H, W)`` over the ``window`` x ``window`` pixels around each pixel (zeros beyond the
-    border), one axis at a time as sums of shifted views: for a 9-pixel window ``avg_pool2d`` at stride 1 took
-    23 ms per 427x240 frame on one core (as much as the network), this 4-6, and differences of cumulative sums
-    (3.4) lose float32 precision along a frame's rows."""
+    border), one axis at a time as sums of shifted views: ``avg_pool2d`` at stride 1 cost several times more (about
+    as much as the network), and differences of cumulative sums lose float32 precision along a frame's rows."""
     half = window // 2
     for dim, pad in ((3, (half, half)), (2, (0, 0, half, half))):
         size = x.shape[dim]
