@@ -83,6 +83,15 @@ def dis_flow(gray: np.ndarray, flow: dict | None = None):
     return FlowPair(fw.astype(np.float32), bw.astype(np.float32))
 
 
+def flow_spread(flow: np.ndarray, window: int = 9) -> np.ndarray:
+    """Float32 ``(H, W)``: the standard deviation in pixels of the flow vectors ``(H, W, 2)`` in the ``window`` x
+    ``window`` pixels around each pixel (mirrored at the border), as the motion network's spread channel computes
+    it (:func:`eponet.nets.unet.flow_spread`, before its log)."""
+    mean = cv2.blur(flow, (window, window), borderType=cv2.BORDER_REFLECT)
+    square = cv2.blur(flow * flow, (window, window), borderType=cv2.BORDER_REFLECT)
+    return np.sqrt(np.clip(square - mean * mean, 0, None).sum(-1))
+
+
 def flow_tag(flow: dict | None) -> str:
     """The part of a flow cache's file name that tells its settings apart (empty for the default)."""
     return "".join(f"_{k}{v}" for k, v in sorted((flow or {}).items()))
@@ -90,9 +99,11 @@ def flow_tag(flow: dict | None) -> str:
 
 def sequence_auc(name: str, variants=VARIANTS, frames: int | None = None, flow_cache: Path | None = None,
                  seed: int = 0, root: Path = DAVIS, trajectories: dict | None = None,
-                 flow_settings: dict | None = None) -> dict:
+                 flow_settings: dict | None = None, whiten: float | None = None) -> dict:
     """Mean per-frame ROC AUC of each variant's ED for one sequence (and timings); ``trajectories``: settings of
-    the ``dense`` trajectory stage, ``flow_settings``: of the ``dis`` flow stage (see :func:`dis_flow`)."""
+    the ``dense`` trajectory stage, ``flow_settings``: of the ``dis`` flow stage (see :func:`dis_flow`). With
+    ``whiten`` the score is ``ED / (whiten + s)``, ``s`` the local spread of the frame's forward flow
+    (:func:`flow_spread`): the distance in units of how incoherent the flow around the pixel is."""
     from eponet.core.types import FlowPair
     from eponet.plugins.trajectories.dense import DenseTrajectories
 
@@ -112,7 +123,11 @@ def sequence_auc(name: str, variants=VARIANTS, frames: int | None = None, flow_c
     for variant in variants:
         t0 = time.perf_counter()
         result = make_stage(variant).score(traj, flow, np.random.default_rng(seed))
-        out[variant] = float(np.nanmean([roc_auc(result.ed[t], masks[t]) for t in range(len(masks))]))
+        scores = result.ed
+        if whiten is not None:
+            forward = np.concatenate([flow.forward, flow.forward[-1:]])  # the last frame takes the one before it
+            scores = [ed / (whiten + flow_spread(f)) for ed, f in zip(result.ed, forward)]
+        out[variant] = float(np.nanmean([roc_auc(scores[t], masks[t]) for t in range(len(masks))]))
         out[variant + "_s"] = time.perf_counter() - t0
         models = [t.get("model") for t in result.triplets]
         out[variant + "_models"] = {m: models.count(m) for m in sorted(set(models))}

@@ -34,7 +34,7 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus-seed1 --seeds 0,1 --seed 1
         # the same networks with another RANSAC / self-training seed: how far the figures move by chance
     python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--trajectories cull_collisions=true] \
-        [--flow finest_scale=0] [--flow-cache DIR]
+        [--flow finest_scale=0] [--flow-cache DIR] [--ed-whiten EPS]
         # the ED on OpenCV's DIS medium as it is (finest level 1), or with the dis stage's settings
         # (finest_scale=0: the presets' flow)
     python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-epo-bf16 --motion-net precision=bfloat16
@@ -185,10 +185,11 @@ def fold_sources(sources: list[dict], i: int, held_out: list[str]) -> list[dict]
 
 
 def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, trajectories: dict | None = None,
-           seed: int = 0, flow: dict | None = None) -> dict[str, dict]:
+           seed: int = 0, flow: dict | None = None, whiten: float | None = None) -> dict[str, dict]:
     """ED ROC AUC per sequence (no training, so the folds only label the rows), the stage seeded with ``seed``;
     ``flow``: settings of the ``dis`` flow stage (default: OpenCV's ``medium`` as it is, finest level 1, where the
-    presets run level 0: ``finest_scale=0``)."""
+    presets run level 0: ``finest_scale=0``); ``whiten``: score ED over the local flow spread (see
+    :func:`geometry_davis_auc.sequence_auc`)."""
     import logging
 
     import geometry_davis_auc as g
@@ -200,7 +201,7 @@ def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, traj
     for i, names in enumerate(split):
         for name in names:
             r = g.sequence_auc(name, ("default",), flow_cache=flow_cache, trajectories=trajectories, seed=seed,
-                               flow_settings=flow)
+                               flow_settings=flow, whiten=whiten)
             out[name] = {"fold": i, "AUC": r["default"], "models": r["default_models"]}
             print(f"  {name:<18} AUC {r['default']:.3f} {r['default_models']}", flush=True)
     return out
@@ -416,6 +417,8 @@ def main(argv=None) -> int:
     parser.add_argument("--motion-net", nargs="*", default=[],
                         help="epo: key=value settings of the fold's epo_unet stage, e.g. precision=bfloat16")
     parser.add_argument("--flow-cache", type=Path, default=None)
+    parser.add_argument("--ed-whiten", type=float, default=None, metavar="EPS",
+                        help="(ed) score ED / (EPS + the local spread of the flow in px) instead of ED")
     parser.add_argument("--seed", type=int, default=0,
                         help="the rigidity stage's seed (ed), or the held-out runs' spec seed (epo, epo+: RANSAC, "
                         "self-training), to measure how far the figures move by chance")
@@ -456,9 +459,9 @@ def main(argv=None) -> int:
     motion_net = key_values(args.motion_net)
     if args.what == "ed":
         per_sequence = run_ed([split[i] if i in which else [] for i in range(len(split))], rigidity, args.flow_cache,
-                              trajectories, args.seed, flow)
+                              trajectories, args.seed, flow, args.ed_whiten)
         measures = ("AUC",)
-        meta = {"rigidity": rigidity}
+        meta = {"rigidity": rigidity, **({"ed_whiten": args.ed_whiten} if args.ed_whiten is not None else {})}
     else:
         fusion = key_values(args.fusion)
         appearance = key_values(args.appearance)
