@@ -15,7 +15,8 @@ with the best mean J there); that fold's six sequences are then reported with th
 
 ``--preset epo+`` starts from that preset's CRF instead (on an ``--what epo+`` k-fold's saliency, the fused
 maps), ``--grid weights`` tries the bilateral kernel's colour width and weight instead of the cheaper sizes, and
-``--grid backend`` the bilateral-grid CRF (``backend: grid``) with several cell sizes.
+``--grid backend`` the bilateral-grid CRF (``backend: grid``) with several cell sizes; ``--grid-json`` takes any
+list of settings.
 
     python benchmarks/crf_speed_sweep.py --dump runs/kfold-epo-dump [--every 4] [--jobs 2]
     python benchmarks/crf_speed_sweep.py --dump runs/kfold-epo-plus --preset epo+ --grid weights --choose best
@@ -127,10 +128,14 @@ def main() -> int:
     parser.add_argument("--tolerance", type=float, default=0.002)
     parser.add_argument("--preset", default="epo", help="the preset whose CRF is the first setting (epo, epo+)")
     parser.add_argument("--grid", choices=("speed", "weights", "backend"), default="speed")
+    parser.add_argument("--grid-json", help="instead of --grid: a JSON list of [label, {refiner settings}] pairs "
+                        "(the preset's CRF is put first)")
     parser.add_argument("--choose", choices=("cheapest", "best"), default="cheapest",
                         help="per fold: the cheapest setting within --tolerance of the preset's J, or the best J")
     args = parser.parse_args()
     grid = {"speed": GRID, "weights": WEIGHTS_GRID, "backend": BACKEND_GRID}[args.grid]
+    if args.grid_json:
+        grid = [("preset", {})] + [(str(label), dict(changes)) for label, changes in json.loads(args.grid_json)]
     record = json.loads((args.dump / "kfold.json").read_text())
     root = args.dump / "davis-480p-from-240p"
     folds = record["folds"]
