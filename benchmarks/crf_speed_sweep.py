@@ -135,7 +135,10 @@ def main() -> int:
     args = parser.parse_args()
     grid = {"speed": GRID, "weights": WEIGHTS_GRID, "backend": BACKEND_GRID}[args.grid]
     if args.grid_json:
-        grid = [("preset", {})] + [(str(label), dict(changes)) for label, changes in json.loads(args.grid_json)]
+        try:
+            grid = [("preset", {})] + [(str(label), dict(changes)) for label, changes in json.loads(args.grid_json)]
+        except (ValueError, TypeError) as error:
+            parser.error(f"--grid-json: expected a JSON list of [label, {{settings}}] pairs ({error})")
     record = json.loads((args.dump / "kfold.json").read_text())
     root = args.dump / "davis-480p-from-240p"
     folds = record["folds"]

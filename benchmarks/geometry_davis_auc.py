@@ -85,8 +85,8 @@ def dis_flow(gray: np.ndarray, flow: dict | None = None):
 
 def flow_spread(flow: np.ndarray, window: int = 9) -> np.ndarray:
     """Float32 ``(H, W)``: the standard deviation in pixels of the flow vectors ``(H, W, 2)`` in the ``window`` x
-    ``window`` pixels around each pixel (mirrored at the border), as the motion network's spread channel computes
-    it (:func:`eponet.nets.unet.flow_spread`, before its log)."""
+    ``window`` pixels around each pixel, the motion network's spread channel before its log
+    (:func:`eponet.nets.unet.flow_spread`) except at the border, which this mirrors and that one cuts."""
     mean = cv2.blur(flow, (window, window), borderType=cv2.BORDER_REFLECT)
     square = cv2.blur(flow * flow, (window, window), borderType=cv2.BORDER_REFLECT)
     return np.sqrt(np.clip(square - mean * mean, 0, None).sum(-1))
