@@ -59,13 +59,17 @@ BACKEND_GRID = [("preset", {}), ("pydensecrf", {"backend": "pydensecrf"})] + [
 
 
 def _preset(name: str = "epo") -> dict:
+    import inspect
+
     from eponet.core.registry import get_registry
+    from eponet.plugins.refiner.densecrf import densecrf_mask
 
     registry = get_registry()
-    defaults = {p.name: p.default for p in registry.get("refiner", "densecrf").params if p.name != "helper_process"}
+    defaults = {p.name: p.default for p in registry.get("refiner", "densecrf").params}
     refiner = dict(registry.resolve_preset(name)["refiner"])
     refiner.pop("plugin")
-    return {**defaults, **refiner}
+    # what densecrf_mask takes (the stage's helper_process and the run loop's temporal averaging are not the CRF's)
+    return {k: v for k, v in {**defaults, **refiner}.items() if k in inspect.signature(densecrf_mask).parameters}
 
 
 def nested(rows: dict, folds: list[list[str]], pick) -> tuple[dict[int, int], dict[str, float]]:

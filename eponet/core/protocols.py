@@ -116,4 +116,8 @@ class Fusion(Protocol):
 class Refiner(Protocol):
     def refine(self, frames: np.ndarray, probability: np.ndarray) -> np.ndarray:
         """Binary masks uint8 ``(F, H, W)`` in {0, 1} from RGB ``frames`` uint8 ``(F, H, W, 3)`` and the
-        foreground ``probability`` float32 ``(F, H, W)``, both at the input frame size."""
+        foreground ``probability`` float32 ``(F, H, W)``, both at the input frame size.
+
+        A refiner may have an attribute ``temporal`` (default 0): when it is 1 the run loop averages each frame's
+        probability with its neighbours' warped into it along the flow before resizing it and handing it over
+        (:func:`eponet.core.temporal.temporal_mean`), one frame of look-ahead."""

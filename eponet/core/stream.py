@@ -59,6 +59,7 @@ from .graph import KINDS, check_output
 from .imaging import resize_map
 from .motion import FLOW_SCALE, ed_frame_sample, ed_window_scale, normalise_ed
 from .prefetch import Prefetch, wait_for
+from .temporal import temporal_mean
 from . import rigidity_stream
 from .rigidity_stream import GeometryScorer
 from .types import FlowPair, Video
@@ -86,6 +87,7 @@ class FrameItem:
     saliency: np.ndarray | None = None  # float32 (h, w): the motion net's probability
     features: np.ndarray | None = None  # float32 (C, fh, fw)
     fused: np.ndarray | None = None  # float32 (h, w): the fusion's probability
+    averaged: np.ndarray | None = None  # float32 (h, w): fused or saliency averaged along the flow (refiner.temporal)
     probability: np.ndarray | None = None  # float32 (H, W) at the input size: what the refiner reads
     mask: np.ndarray | None = None  # uint8 (H, W)
 
@@ -219,6 +221,8 @@ class SequenceStream:
             stream = self._per_frame("appearance", stream, self._features)
         if "fusion" in stages:
             stream = self._fusion(stream)
+        if "refiner" in stages and getattr(stages["refiner"], "temporal", 0):
+            stream = self._temporal(stream)
         stream = self._probability(stream)
         if "refiner" in stages:
             stream = self._per_frame("refiner", stream, self._refine)
@@ -495,9 +499,33 @@ class SequenceStream:
         for item, value in zip(batch, masks):
             item.mask = value
 
+    def _temporal(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
+        """Each frame's probability (fused, else saliency) averaged with its neighbours' warped into it along the
+        flow (:func:`eponet.core.temporal.temporal_mean`), into ``averaged``: one frame of look-ahead."""
+        def own(item):
+            return item.fused if item.fused is not None else item.saliency
+
+        def average(before, item, after):
+            if own(item) is None:
+                return
+            previous = (own(before), before.backward, before.forward) if before is not None else None
+            following = (own(after), item.forward, item.backward) if after is not None else None
+            neighbours = [n if n is not None and all(v is not None for v in n) else None for n in (previous, following)]
+            item.averaged = self._timed("refiner", lambda: temporal_mean(own(item), *neighbours))
+
+        before = item = None
+        for after in stream:
+            if item is not None:
+                average(before, item, after)
+                yield item
+            before, item = item, after
+        if item is not None:
+            average(before, item, None)
+            yield item
+
     def _probability(self, stream: Iterator[FrameItem]) -> Iterator[FrameItem]:
         for item in stream:
-            value = item.fused if item.fused is not None else item.saliency
+            value = next((v for v in (item.averaged, item.fused, item.saliency) if v is not None), None)
             if value is not None:
                 item.probability = resize_map(value, self.size).clip(0, 1)
             yield item

@@ -217,9 +217,14 @@ class DenseCrfRefiner:
     ``helper_process`` (the default) the CRF itself runs in one helper process (started on first use, shared by
     every refiner of this process); the resizing and cropping stay here, and the masks are the same bit for bit.
     ``backend: grid`` (:mod:`eponet.plugins.refiner.gridcrf`) runs in this process: numpy, no helper.
+
+    ``temporal`` (0 or 1): with 1 the run loop hands the CRF each frame's probability averaged with its two
+    neighbours' warped into it along the flow (:mod:`eponet.core.temporal`; the protocol's ``temporal``).
     """
 
-    def __init__(self, *, helper_process: bool = True, backend: str = "pydensecrf", grid_cell: float = CELL, **params):
+    def __init__(self, *, helper_process: bool = True, backend: str = "pydensecrf", grid_cell: float = CELL,
+                 temporal: int = 0, **params):
+        self.temporal = int(temporal)
         self.helper_process = helper_process
         self.backend, self.grid_cell = backend, grid_cell
         self.params = params
@@ -272,6 +277,9 @@ def eponet_stages():
                       minimum=0.25, maximum=4.0),
                 Param("crop_margin", "float", None, "run only on the box around the pixels above 0.5, grown by this "
                       "many bilateral widths (background outside; null = the whole frame)", minimum=0.0, nullable=True),
+                Param("temporal", "int", 0, "1: refine each frame's probability averaged with its two neighbours' "
+                      "warped into it along the flow, where the flow is forward-backward consistent (a frame that loses "
+                      "the object between two that hold it); 0: each frame alone", minimum=0, maximum=1),
             ),
             doc="dense CRF with the EpO-Net defaults (pydensecrf's lattice, or a numpy bilateral grid: backend)",
         )
