@@ -60,7 +60,7 @@ def test_the_run_loop_averages_the_probability_it_hands_the_refiner(tmp_path):
     folder = _clip(tmp_path / "clip", count=8)
     video = load_video(discover_sequences(folder)[0], scale=1.0)
     stages = {"refiner": {"plugin": "densecrf", "temporal": 1}, "rigidity": {"max_points": 300}}
-    plain = Pipeline(_spec(folder, tmp_path / "a", preset="epo", stages={**stages, "refiner": {"plugin": "densecrf"}},
+    plain = Pipeline(_spec(folder, tmp_path / "a", preset="epo", stages={**stages, "refiner": {"plugin": "densecrf", "temporal": 0}},
                            save=("masks",))).process(video)
     averaged = Pipeline(_spec(folder, tmp_path / "b", preset="epo", stages=stages, save=("masks",))).process(video)
     p, flow = plain.saliency, plain.flow
@@ -69,3 +69,12 @@ def test_the_run_loop_averages_the_probability_it_hands_the_refiner(tmp_path):
         before = (p[t - 1], flow.backward[t - 1], flow.forward[t - 1]) if t > 0 else None
         after = (p[t + 1], flow.forward[t], flow.backward[t]) if t + 1 < len(p) else None
         np.testing.assert_allclose(averaged.saliency[t], temporal_mean(p[t], before, after).clip(0, 1), atol=1e-5)
+
+
+def test_epo_averages_and_the_presets_measured_without_it_do_not():
+    from eponet.core.registry import get_registry
+
+    registry = get_registry()
+    assert registry.resolve_preset("epo")["refiner"]["temporal"] == 1
+    for preset in ("epo-st", "epo+", "geometry"):  # (geometry has no refiner)
+        assert registry.resolve_preset(preset).get("refiner", {}).get("temporal", 0) == 0
