@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import inspect
 import os
 import sys
 import time
@@ -194,15 +193,10 @@ def bench_refiner(frames: list[np.ndarray]) -> dict[str, float]:
     import pydensecrf.densecrf as dcrf
     from pydensecrf.utils import unary_from_softmax
 
-    from eponet.core.registry import get_registry
+    from crf_speed_sweep import preset_crf
     from eponet.plugins.refiner.densecrf import densecrf_mask
 
-    preset = dict(get_registry().resolve_preset("epo")["refiner"])
-    preset.pop("plugin")
-    defaults = {p.name: p.default for p in get_registry().get("refiner", "densecrf").params}
-    # densecrf_mask: the CRF of one frame, in this process (no helper_process; temporal is the run loop's)
-    accepted = inspect.signature(densecrf_mask).parameters
-    params = {k: v for k, v in {**defaults, **preset}.items() if k in accepted}
+    params = preset_crf("epo")  # densecrf_mask's arguments: the CRF of one frame, in this process
     yy, xx = np.mgrid[0:480, 0:854]
     probability = np.exp(-(((xx - 500) / 150.0) ** 2 + ((yy - 260) / 110.0) ** 2)).astype(np.float32)
     scale = params["max_size"] / 854

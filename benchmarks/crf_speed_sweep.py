@@ -58,7 +58,8 @@ BACKEND_GRID = [("preset", {}), ("pydensecrf", {"backend": "pydensecrf"})] + [
     (f"grid, cell {cell}", {"backend": "grid", "grid_cell": cell}) for cell in (1.0, 1.25, 1.5, 2.0)]
 
 
-def _preset(name: str = "epo") -> dict:
+def preset_crf(name: str = "epo") -> dict:
+    """The keyword arguments of ``densecrf_mask`` that preset ``name``'s refiner runs with (defaults filled in)."""
     import inspect
 
     from eponet.core.registry import get_registry
@@ -109,7 +110,7 @@ def _score_sequence(job: tuple) -> dict:
     from eponet.plugins.refiner.densecrf import densecrf_mask
 
     root, heldout, name, every, preset_name, grid = job
-    preset = _preset(preset_name)
+    preset = preset_crf(preset_name)
     frames = scored_frames(root, name, every)
     count = next(frames)
     scores, seconds = [[] for _ in grid], [0.0 for _ in grid]

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from crf_speed_sweep import _preset, nested, saved_map, scored_frames  # noqa: E402
+from crf_speed_sweep import nested, preset_crf, saved_map, scored_frames  # noqa: E402
 
 EPS = 1e-3
 
@@ -46,7 +46,7 @@ def _score_sequence(job: tuple) -> dict:
     from eponet.plugins.refiner.densecrf import densecrf_mask
 
     root, fused_dir, motion_dir, name, every, preset_name, grid = job
-    preset = _preset(preset_name)
+    preset = preset_crf(preset_name)
     frames = scored_frames(root, name, every)
     count = next(frames)
     scores = [[] for _ in grid]

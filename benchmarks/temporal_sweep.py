@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from crf_speed_sweep import _preset, nested, saved_map, scored_frames  # noqa: E402
+from crf_speed_sweep import nested, preset_crf, saved_map, scored_frames  # noqa: E402
 
 #: (label, {offset: weight of each neighbour at that offset}, combine, forward-backward test, warp)
 VARIANTS = [("none", {}, "mean", False, True),
@@ -45,7 +45,7 @@ def _score_sequence(job: tuple) -> dict:
     from eponet.plugins.refiner.densecrf import densecrf_mask
 
     root, heldout, name, every = job
-    preset = _preset("epo")
+    preset = preset_crf("epo")
     files = sorted((root / "JPEGImages" / "480p" / name).glob("*.png"))
     stems = [f.stem for f in files]
     maps = np.stack([saved_map(heldout, name, s) for s in stems]).astype(np.float32)

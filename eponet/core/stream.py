@@ -505,13 +505,16 @@ class SequenceStream:
         def own(item):
             return item.fused if item.fused is not None else item.saliency
 
+        def neighbour(other, there, back):  # (probability, flow there, flow back) or None where one is missing
+            values = (own(other), there, back) if other is not None else (None,)
+            return None if any(v is None for v in values) else values
+
         def average(before, item, after):
             if own(item) is None:
                 return
-            previous = (own(before), before.backward, before.forward) if before is not None else None
-            following = (own(after), item.forward, item.backward) if after is not None else None
-            neighbours = [n if n is not None and all(v is not None for v in n) else None for n in (previous, following)]
-            item.averaged = self._timed("refiner", lambda: temporal_mean(own(item), *neighbours))
+            previous = neighbour(before, before and before.backward, before and before.forward)
+            following = neighbour(after, item.forward, item.backward)
+            item.averaged = self._timed("refiner", lambda: temporal_mean(own(item), previous, following))
 
         before = item = None
         for after in stream:
