@@ -1,7 +1,8 @@
 """Temporal averaging of held-out saliency along the flow before the ``epo`` preset's CRF: which variant, held out.
 
 Reads the held-out saliency maps of a k-fold run (``benchmarks/kfold.py --what epo --save masks,saliency``: 8-bit
-maps at 480p, each of the 30 DAVIS-2016 train sequences scored by networks trained without it). For every
+maps at 480p, each of the 30 DAVIS-2016 train sequences scored by networks trained without it; with ``--what epo+``
+the fused maps, refined with ``--preset epo+``'s CRF). For every
 ``--every``-th scored frame t, each variant averages t's map with its neighbours' warped into t along DIS
 ``medium`` flow of the 240p frames (upsampled), then refines with the preset's CRF and scores J against the 480p
 ground truth. Variants: the radius (1: t - 1 and t + 1; 2: also t +- 2 at half weight), the mean or the median,
@@ -9,7 +10,7 @@ and the forward-backward test (``fb``: where the flow does not come back, Sundar
 stands in; :mod:`eponet.core.temporal`, which the run loop's ``refiner: {temporal: 1}`` uses, is ``r1 fb``);
 ``plain``: the neighbours unwarped. The variant chosen per fold on the other four folds gives the nested J.
 
-    python benchmarks/temporal_sweep.py --dump runs/kfold-v5-spread [--every 4] [--jobs 2]
+    python benchmarks/temporal_sweep.py --dump runs/kfold-v5-spread [--every 4] [--jobs 2] [--preset epo+]
 """
 
 from __future__ import annotations
@@ -44,8 +45,8 @@ def _score_sequence(job: tuple) -> dict:
     from eponet.evaluation.metrics import db_eval_iou
     from eponet.plugins.refiner.densecrf import densecrf_mask
 
-    root, heldout, name, every = job
-    preset = preset_crf("epo")
+    root, heldout, name, every, preset_name = job
+    preset = preset_crf(preset_name)
     files = sorted((root / "JPEGImages" / "480p" / name).glob("*.png"))
     stems = [f.stem for f in files]
     maps = np.stack([saved_map(heldout, name, s) for s in stems]).astype(np.float32)
@@ -88,10 +89,11 @@ def main() -> int:
     parser.add_argument("--dump", type=Path, required=True, help="output folder of kfold.py --save ...,saliency")
     parser.add_argument("--every", type=int, default=4)
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--preset", default="epo", help="whose CRF refines the maps (epo+ for epo+'s fused maps)")
     args = parser.parse_args()
     record = json.loads((args.dump / "kfold.json").read_text())
     root, folds = args.dump / "davis-480p-from-240p", record["folds"]
-    jobs = [(root, args.dump / f"fold{i}" / "heldout", name, args.every) for i, names in enumerate(folds)
+    jobs = [(root, args.dump / f"fold{i}" / "heldout", name, args.every, args.preset) for i, names in enumerate(folds)
             for name in names]
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = {r["name"]: r for r in pool.map(_score_sequence, jobs)}

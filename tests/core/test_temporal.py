@@ -71,10 +71,10 @@ def test_the_run_loop_averages_the_probability_it_hands_the_refiner(tmp_path):
         np.testing.assert_allclose(averaged.saliency[t], temporal_mean(p[t], before, after).clip(0, 1), atol=1e-5)
 
 
-def test_epo_averages_and_the_presets_measured_without_it_do_not():
+def test_the_presets_that_refine_average():
     from eponet.core.registry import get_registry
 
     registry = get_registry()
-    assert registry.resolve_preset("epo")["refiner"]["temporal"] == 1
-    for preset in ("epo-st", "epo+", "geometry"):  # (geometry has no refiner)
-        assert registry.resolve_preset(preset).get("refiner", {}).get("temporal", 0) == 0
+    for preset in ("epo", "epo-st", "epo+"):
+        assert registry.resolve_preset(preset)["refiner"]["temporal"] == 1
+    assert "refiner" not in registry.resolve_preset("geometry")

@@ -181,8 +181,9 @@ def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
     meta = torch.load(builtin_weights()[fused["fusion"]["weights"]].file, map_location="cpu", weights_only=True)["meta"]
     assert meta["motion_net"]["params"]["weights"] == "epo-davis-v5"  # the maps it was trained on (not the pair's)
     assert meta["appearance"]["plugin"] == fused["appearance"]["plugin"] == "efficientnet_lite2"
-    # the authors' CRF weights, on the box around the object only (held out: the same J, 39% less CRF time)
-    assert fused["refiner"] == {"plugin": "densecrf", "max_size": 427, "crop_margin": 3.0}
+    # the authors' CRF weights, on the box around the object only (held out: the same J, 39% less CRF time), on the
+    # fused map averaged along the flow (held out: T 0.223 -> 0.191 at equal J)
+    assert fused["refiner"] == {"plugin": "densecrf", "max_size": 427, "crop_margin": 3.0, "temporal": 1}
     assert fused["fusion"]["motion_support"] == 0.7  # chosen per fold on the other folds (the card)
 
 
