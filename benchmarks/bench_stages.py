@@ -22,7 +22,8 @@ default 1), after a warm-up batch:
 - ``refiner``: the ``epo`` preset's dense CRF (854x480 frames and probabilities, run at 427 px wide) on real
   frames, split into its parts (resizing and unary, the Gaussian and bilateral kernels' set-up, the five
   mean-field iterations: pydensecrf's), and ``densecrf_mask`` as the stage calls it, with the preset's backend
-  (``grid``) and with the other.
+  (``grid``) and with the other; and the presets' temporal averaging before it (``refiner: {temporal: 1}``, on
+  random probabilities warped along the frames' DIS flow at 427x240).
 """
 
 from __future__ import annotations
@@ -227,7 +228,23 @@ def bench_refiner(frames: list[np.ndarray]) -> dict[str, float]:
     figures[f"densecrf_mask, backend {other}"] = _timed(
         lambda: [densecrf_mask(f, probability, **{**params, "backend": other}) for f in frames], len(frames),
         repeats=1)
+    figures["temporal averaging (refiner temporal: 1, 427x240)"] = bench_temporal(frames)
     return figures
+
+
+def bench_temporal(frames: list[np.ndarray]) -> float:
+    """``refiner: {temporal: 1}``: each frame's probability averaged with its two neighbours' warped into it along
+    the frames' DIS flow at 427x240 (the flow is not timed), in ms per frame."""
+    from eponet.core.temporal import temporal_mean
+
+    grey = [cv2.cvtColor(cv2.resize(f, SIZE, interpolation=cv2.INTER_AREA), cv2.COLOR_RGB2GRAY) for f in frames]
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    forward = [dis.calc(a, b, None) for a, b in zip(grey, grey[1:])]
+    backward = [dis.calc(b, a, None) for a, b in zip(grey, grey[1:])]
+    p = [np.random.default_rng(t).random(SIZE[::-1], dtype=np.float32) for t in range(len(grey))]
+    inner = range(1, len(grey) - 1)
+    return _timed(lambda: [temporal_mean(p[t], (p[t - 1], backward[t - 1], forward[t - 1]),
+                                         (p[t + 1], forward[t], backward[t])) for t in inner], len(inner))
 
 
 def main() -> int:

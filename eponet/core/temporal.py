@@ -9,21 +9,24 @@ stands in for the neighbour's.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import cv2
 import numpy as np
 
+from .imaging import fb_consistent
+
 __all__ = ["warp_into", "temporal_mean"]
 
-#: Forward-backward test (Sundaram et al. 2010): a pixel's flow ``w`` is consistent when
-#: ``|w + w_back|^2 < FB_RELATIVE * (|w|^2 + |w_back|^2) + FB_ABSOLUTE`` (px^2).
-FB_RELATIVE = 0.01
-FB_ABSOLUTE = 0.5
 
-
+@lru_cache(maxsize=4)
 def _grid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel coordinates x, y float32 ``(h, w)`` of a frame of ``shape``."""
+    """Pixel coordinates x, y float32 ``(h, w)`` of a frame of ``shape`` (read-only: shared between calls)."""
     h, w = shape
-    return np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    grid = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    for axis in grid:
+        axis.flags.writeable = False
+    return grid[0], grid[1]
 
 
 def warp_into(probability: np.ndarray, there: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -52,16 +55,13 @@ def warp_into(probability: np.ndarray, there: np.ndarray, back: np.ndarray) -> t
     ([0.0, 0.0, 1.0, 0.0, 0.0, 0.0], True)
     """
     there = np.asarray(there, np.float32)
-    gx, gy = _grid(there.shape[:2])
+    gx, gy = _grid(tuple(there.shape[:2]))
     mx, my = gx + there[..., 0], gy + there[..., 1]  # where each pixel of t lies in the other frame
     def sample(values):  # bilinear at (mx, my); outside the frame the nearest edge value
         return cv2.remap(np.ascontiguousarray(values, np.float32), mx, my, cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_REPLICATE)
     warped, returned = sample(probability), sample(back)
-    (u, v), (ru, rv) = (there[..., 0], there[..., 1]), (returned[..., 0], returned[..., 1])
-    error = (u + ru) ** 2 + (v + rv) ** 2  # (per channel: a reduction over the last axis is several times slower)
-    bound = FB_RELATIVE * (u * u + v * v + ru * ru + rv * rv) + FB_ABSOLUTE
-    return warped, error < bound
+    return warped, fb_consistent(there[..., 0], there[..., 1], returned[..., 0], returned[..., 1])
 
 
 def temporal_mean(probability: np.ndarray, before: tuple | None, after: tuple | None) -> np.ndarray:

@@ -14,6 +14,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..core.imaging import fb_consistent
+
 __all__ = [
     "sample_bilinear",
     "round_half_up",
@@ -93,10 +95,7 @@ def fb_consistent_points(
     f = sample_bilinear(forward, points)
     targets = points + f
     b = sample_bilinear(backward, targets)
-    fx, fy, bx, by = f[:, 0], f[:, 1], b[:, 0], b[:, 1]  # column expressions: sum(axis=1) is slow here
-    lhs = (fx + bx) ** 2 + (fy + by) ** 2
-    rhs = relative * (fx * fx + fy * fy + bx * bx + by * by) + absolute
-    return targets, lhs < rhs
+    return targets, fb_consistent(f[:, 0], f[:, 1], b[:, 0], b[:, 1], relative=relative, absolute=absolute)
 
 
 def exact_round_trip(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
