@@ -57,6 +57,10 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus-pair-grid --seeds 0,1 \
         --crf backend=grid grid_cell=1.0
         # settings merged onto the refiner (the fold folders' fusion/ linked to an earlier run's: nothing retrained)
+    python benchmarks/kfold.py --what epo+ --weights runs/kfold-v5-pair2 --seeds 0,1 --out runs/kfold-v5-pair2-gru \
+        --recipe-rigidity prior_groups=4 --rigidity prior_groups=4 --appearance plugin=none --fusion selftrain=0
+        # the fusion without appearance (the ConvGRU on the motion map alone; --fusion-model key=value merges onto
+        # the fusion recipe's model section, e.g. feature_dropout=0.75)
 
 Trained folds (``weights.pt`` present) are reused; ``<out>/kfold.json`` holds every figure, and a later call
 with other ``--folds`` and the same settings adds its folds to it.
@@ -235,7 +239,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             teacher: Path | None = None, teacher_seeds: tuple[int, ...] = (0, 1), teacher_share: float = 0.5,
             recipe_data: list[dict] | None = None, recipe_phases: list[dict] | None = None,
             fusion_maps: str = "own", appearance: dict | None = None,
-            fusion_seeds: tuple[int, ...] = (0,), recipe_dropout: dict | None = None) -> dict[str, dict]:
+            fusion_seeds: tuple[int, ...] = (0,), recipe_dropout: dict | None = None,
+            fusion_model: dict | None = None) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
@@ -258,7 +263,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     but those networks were trained on fold ``i``'s sequences, so the figures are not fully held out: a scouting
     measure, not a figure of record). ``appearance``: the appearance stage (``plugin`` and settings) the
     held-out runs use and, with ``plus``, the fusions learn on; ``fusion_seeds``: the fusions' training seeds, one
-    fusion per seed (``out/fold<i>/fusion`` for the first, ``fusion-seed<s>`` for the others) whose mean is scored."""
+    fusion per seed (``out/fold<i>/fusion`` for the first, ``fusion-seed<s>`` for the others) whose mean is scored;
+    ``fusion_model``: merged onto the fusion recipe's ``model`` section, e.g. ``feature_dropout``."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
@@ -298,6 +304,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})  # the ED the networks learnt on
             if appearance:
                 doc["appearance"] = {**doc["appearance"], **appearance}
+            doc["model"].update(fusion_model or {})
             doc["seed"] = seed
             if fusion_maps == "out-of-fold":
                 doc["motion_maps"] = [{"weights": [str(path.resolve()) for path in nets(j)], "sequences": split[j]}
@@ -429,6 +436,8 @@ def main(argv=None) -> int:
                              "runs use (and, for epo+, the fusions learn on), e.g. plugin=efficientnet_lite2")
     parser.add_argument("--fusion-seed", default="0", help="epo+: the fusions' training seed; a comma-separated list "
                         "trains one fusion per seed and scores their mean (fusion-seed<s>/ beside fusion/)")
+    parser.add_argument("--fusion-model", nargs="*", default=[],
+                        help="epo+: key=value merged onto the fusion recipe's model section, e.g. feature_dropout=0.75")
     parser.add_argument("--fusion-maps", choices=("own", "out-of-fold"), default="own",
                         help="epo+: the maps each fold's fusion learns on: its own network's (trained on those "
                         "sequences) or, for each sequence, the network of the fold that held it out (every fold's "
@@ -478,7 +487,8 @@ def main(argv=None) -> int:
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
                                args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share,
-                               recipe_data, recipe_phases, args.fusion_maps, appearance, fusion_seeds, recipe_dropout)
+                               recipe_data, recipe_phases, args.fusion_maps, appearance, fusion_seeds, recipe_dropout,
+                               key_values(args.fusion_model))
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -501,6 +511,8 @@ def main(argv=None) -> int:
             meta["seeds"] = list(seeds)
         if plus:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
+        if args.fusion_model:  # (kept out of the default's record: earlier reports still merge)
+            meta["fusion_model"] = key_values(args.fusion_model)
         if args.fusion_maps != "own":  # (kept out of the default's record: earlier reports still merge)
             meta["fusion_maps"] = args.fusion_maps
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)
