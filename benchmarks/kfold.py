@@ -60,7 +60,7 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-v5-pair2 --seeds 0,1 --out runs/kfold-v5-pair2-gru \
         --recipe-rigidity prior_groups=4 --rigidity prior_groups=4 --appearance plugin=none --fusion selftrain=0
         # the fusion without appearance (the ConvGRU on the motion map alone; --fusion-model key=value merges onto
-        # the fusion recipe's model section, e.g. feature_dropout=0.75)
+        # the fusion recipe's model section, e.g. feature_dropout=0.75; --fusion-dropout onto its input_dropout)
 
 Trained folds (``weights.pt`` present) are reused; ``<out>/kfold.json`` holds every figure, and a later call
 with other ``--folds`` and the same settings adds its folds to it.
@@ -126,9 +126,21 @@ def report(per_sequence: dict[str, dict], measures: tuple[str, ...], attrs: dict
     return "\n".join(lines)
 
 
-def key_values(items: list[str]) -> dict:
-    """``["k=v", ...]`` from the command line as a dict, each value read as YAML (``0.15`` a number)."""
-    return {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in items)}
+def key_value(text: str) -> tuple[str, object]:
+    """An argparse type: ``k=v`` as ``(k, v)``, the value read as YAML (``0.15`` a number); anything else is a usage
+    error naming the option, not a traceback."""
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected key=value, got {text!r}")
+    try:
+        return key, yaml.safe_load(value)
+    except yaml.YAMLError as exc:
+        raise argparse.ArgumentTypeError(f"{key}: not YAML: " + " ".join(str(exc).split())) from None
+
+
+def key_values(items: list[tuple[str, object]]) -> dict:
+    """The ``(key, value)`` pairs of a ``key=value`` option (:func:`key_value`) as a dict."""
+    return dict(items)
 
 
 def _finite(value):
@@ -240,7 +252,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             recipe_data: list[dict] | None = None, recipe_phases: list[dict] | None = None,
             fusion_maps: str = "own", appearance: dict | None = None,
             fusion_seeds: tuple[int, ...] = (0,), recipe_dropout: dict | None = None,
-            fusion_model: dict | None = None) -> dict[str, dict]:
+            fusion_model: dict | None = None, fusion_dropout: dict | None = None) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
@@ -264,7 +276,8 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     measure, not a figure of record). ``appearance``: the appearance stage (``plugin`` and settings) the
     held-out runs use and, with ``plus``, the fusions learn on; ``fusion_seeds``: the fusions' training seeds, one
     fusion per seed (``out/fold<i>/fusion`` for the first, ``fusion-seed<s>`` for the others) whose mean is scored;
-    ``fusion_model``: merged onto the fusion recipe's ``model`` section, e.g. ``feature_dropout``."""
+    ``fusion_model``, ``fusion_dropout``: merged onto the fusion recipe's ``model`` and ``input_dropout`` sections,
+    e.g. ``feature_dropout``, ``probability``."""
     weights = weights or out
     threads = 1 if jobs > 1 else None
 
@@ -305,6 +318,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             if appearance:
                 doc["appearance"] = {**doc["appearance"], **appearance}
             doc["model"].update(fusion_model or {})
+            doc["input_dropout"].update(fusion_dropout or {})
             doc["seed"] = seed
             if fusion_maps == "out-of-fold":
                 doc["motion_maps"] = [{"weights": [str(path.resolve()) for path in nets(j)], "sequences": split[j]}
@@ -379,21 +393,21 @@ def main(argv=None) -> int:
     parser.add_argument("--folds", default=None, help="comma-separated fold indices (default: all)")
     parser.add_argument("--refiner", choices=("preset", "authors", "epo"), default="preset",
                         help="the preset's CRF, the authors' (the plugin's defaults at 427 px) or the epo preset's")
-    parser.add_argument("--crf", nargs="*", default=[],
+    parser.add_argument("--crf", nargs="*", default=[], type=key_value,
                         help="epo: key=value settings merged onto that refiner, e.g. backend=grid grid_cell=1.0")
     parser.add_argument("--preset", default="epo", help="epo: the preset the held-out sequences run through (its "
                         "motion network replaced by the fold's), e.g. epo-st")
-    parser.add_argument("--fusion", nargs="*", default=[],
+    parser.add_argument("--fusion", nargs="*", default=[], type=key_value,
                         help="epo: plugin=NAME and key=value settings of the fusion stage (e.g. plugin=selftrain weight=0.5)")
-    parser.add_argument("--rigidity", nargs="*", default=[],
+    parser.add_argument("--rigidity", nargs="*", default=[], type=key_value,
                         help="key=value settings of the trifocal stage (epo: merged onto the preset's when scoring)")
-    parser.add_argument("--trajectories", nargs="*", default=[],
+    parser.add_argument("--trajectories", nargs="*", default=[], type=key_value,
                         help="key=value settings of the dense trajectory stage (ed and epo), e.g. cull_collisions=true")
-    parser.add_argument("--recipe-rigidity", nargs="*", default=[],
+    parser.add_argument("--recipe-rigidity", nargs="*", default=[], type=key_value,
                         help="key=value merged onto the training recipe's rigidity stage (the ED the folds learn)")
-    parser.add_argument("--recipe-model", nargs="*", default=[],
+    parser.add_argument("--recipe-model", nargs="*", default=[], type=key_value,
                         help="key=value merged onto the training recipe's model section, e.g. flow_centring=rigid")
-    parser.add_argument("--recipe-dropout", nargs="*", default=[],
+    parser.add_argument("--recipe-dropout", nargs="*", default=[], type=key_value,
                         help="key=value merged onto the training recipe's input_dropout section, e.g. probability=0 "
                         "(with --recipe-model inputs=ed: the ED channel is the only input)")
     parser.add_argument("--seeds", default="0",
@@ -414,14 +428,14 @@ def main(argv=None) -> int:
     parser.add_argument("--teacher-share", type=float, default=0.5, help="the teachers' share of the target")
     parser.add_argument("--weights", type=Path, default=None,
                         help="epo: folder of already trained fold<i>/weights.pt to score (default: --out)")
-    parser.add_argument("--run", nargs="*", default=[],
+    parser.add_argument("--run", nargs="*", default=[], type=key_value,
                         help="epo: key=value settings of the spec's run section (e.g. ed_window=null)")
     parser.add_argument("--sequences", default=None,
                         help="epo: comma-separated sequences to score (default: every sequence of the folds)")
-    parser.add_argument("--flow", nargs="*", default=[],
+    parser.add_argument("--flow", nargs="*", default=[], type=key_value,
                         help="key=value settings of the dis flow stage (ed: default OpenCV's medium, finest level 1; "
                         "epo: merged onto the preset's, finest_scale 0), e.g. finest_scale=0 patch_stride=5")
-    parser.add_argument("--motion-net", nargs="*", default=[],
+    parser.add_argument("--motion-net", nargs="*", default=[], type=key_value,
                         help="epo: key=value settings of the fold's epo_unet stage, e.g. precision=bfloat16")
     parser.add_argument("--flow-cache", type=Path, default=None)
     parser.add_argument("--ed-whiten", type=float, default=None, metavar="EPS",
@@ -431,13 +445,15 @@ def main(argv=None) -> int:
                         "self-training), to measure how far the figures move by chance")
     parser.add_argument("--save", default="masks",
                         help="epo: comma-separated outputs of the held-out runs (output.save), e.g. masks,saliency,ed")
-    parser.add_argument("--appearance", nargs="*", default=[],
+    parser.add_argument("--appearance", nargs="*", default=[], type=key_value,
                         help="epo, epo+: plugin=NAME and key=value settings of the appearance stage the held-out "
                              "runs use (and, for epo+, the fusions learn on), e.g. plugin=efficientnet_lite2")
     parser.add_argument("--fusion-seed", default="0", help="epo+: the fusions' training seed; a comma-separated list "
                         "trains one fusion per seed and scores their mean (fusion-seed<s>/ beside fusion/)")
-    parser.add_argument("--fusion-model", nargs="*", default=[],
+    parser.add_argument("--fusion-model", nargs="*", default=[], type=key_value,
                         help="epo+: key=value merged onto the fusion recipe's model section, e.g. feature_dropout=0.75")
+    parser.add_argument("--fusion-dropout", nargs="*", default=[], type=key_value,
+                        help="epo+: key=value merged onto the fusion recipe's input_dropout section, e.g. probability=0")
     parser.add_argument("--fusion-maps", choices=("own", "out-of-fold"), default="own",
                         help="epo+: the maps each fold's fusion learns on: its own network's (trained on those "
                         "sequences) or, for each sequence, the network of the fold that held it out (every fold's "
@@ -488,7 +504,7 @@ def main(argv=None) -> int:
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
                                args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share,
                                recipe_data, recipe_phases, args.fusion_maps, appearance, fusion_seeds, recipe_dropout,
-                               key_values(args.fusion_model))
+                               key_values(args.fusion_model), key_values(args.fusion_dropout))
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -513,6 +529,8 @@ def main(argv=None) -> int:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
         if args.fusion_model:  # (kept out of the default's record: earlier reports still merge)
             meta["fusion_model"] = key_values(args.fusion_model)
+        if args.fusion_dropout:  # (kept out of the default's record: earlier reports still merge)
+            meta["fusion_dropout"] = key_values(args.fusion_dropout)
         if args.fusion_maps != "own":  # (kept out of the default's record: earlier reports still merge)
             meta["fusion_maps"] = args.fusion_maps
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)
