@@ -23,7 +23,7 @@ default 1), after a warm-up batch:
   frames, split into its parts (resizing and unary, the Gaussian and bilateral kernels' set-up, the five
   mean-field iterations: pydensecrf's), and ``densecrf_mask`` as the stage calls it, with the preset's backend
   (``grid``) and with the other; and the presets' temporal averaging before it (``refiner: {temporal: 1}``, on
-  random probabilities warped along the frames' DIS flow at 427x240).
+  random probabilities warped along the presets' DIS flow at 427x240).
 """
 
 from __future__ import annotations
@@ -148,12 +148,18 @@ FLOW_VARIANTS = {
 }
 
 
-def bench_flow(frames: list[np.ndarray]) -> dict[str, float]:
+def _video(frames: list[np.ndarray]):
+    """``frames`` resized to the processing size, as a :class:`~eponet.core.types.Video`."""
     from eponet.core.types import Video
-    from eponet.plugins.flow.dis import DisFlow
 
     small = np.stack([cv2.resize(f, SIZE, interpolation=cv2.INTER_AREA) for f in frames])
-    video = Video("bench", small, [f"{t:05d}" for t in range(len(small))], small.shape[1:3])
+    return Video("bench", small, [f"{t:05d}" for t in range(len(small))], small.shape[1:3])
+
+
+def bench_flow(frames: list[np.ndarray]) -> dict[str, float]:
+    from eponet.plugins.flow.dis import DisFlow
+
+    video = _video(frames)
     figures = {}
     for label, settings in FLOW_VARIANTS.items():
         stage = DisFlow(preset="medium", **settings)
@@ -161,19 +167,23 @@ def bench_flow(frames: list[np.ndarray]) -> dict[str, float]:
     return figures
 
 
+def _preset_flow(frames: list[np.ndarray]):
+    """The presets' flow (DIS ``medium``, finest level 0) between consecutive ``frames`` at 427x240: a
+    :class:`~eponet.core.types.FlowPair` (not timed: the input of the stages timed after it)."""
+    from eponet.plugins.flow.dis import DisFlow
+
+    return DisFlow(preset="medium", finest_scale=0).estimate(_video(frames))
+
+
 def bench_rigidity(frames: list[np.ndarray]) -> dict[str, float]:
     """The presets' trifocal rigidity on the dense trajectories of ``frames`` at 427x240, with numpy's BLAS on
     one thread (as runs hold it, :data:`eponet.core.workers.BLAS_THREADS`) and on every core (its default)."""
     from threadpoolctl import threadpool_limits
 
-    from eponet.core.types import Video
-    from eponet.plugins.flow.dis import DisFlow
     from eponet.plugins.rigidity.trifocal import TrifocalRigidity
     from eponet.plugins.trajectories.dense import DenseTrajectories
 
-    small = np.stack([cv2.resize(f, SIZE, interpolation=cv2.INTER_AREA) for f in frames])
-    flow = DisFlow(preset="medium", finest_scale=0).estimate(Video("bench", small, [f"{t:05d}" for t in range(len(small))],
-                                                                   small.shape[1:3]))
+    flow = _preset_flow(frames)
     tracks = DenseTrajectories().build(flow)
     stage = TrifocalRigidity()
     # the robust settings of 2026-12-04: LMedS-scored six-point search with trial counts from its noise estimate
@@ -234,15 +244,13 @@ def bench_refiner(frames: list[np.ndarray]) -> dict[str, float]:
 
 def bench_temporal(frames: list[np.ndarray]) -> float:
     """``refiner: {temporal: 1}``: each frame's probability averaged with its two neighbours' warped into it along
-    the frames' DIS flow at 427x240 (the flow is not timed), in ms per frame."""
+    the presets' flow at 427x240 (:func:`_preset_flow`, not timed), in ms per frame."""
     from eponet.core.temporal import temporal_mean
 
-    grey = [cv2.cvtColor(cv2.resize(f, SIZE, interpolation=cv2.INTER_AREA), cv2.COLOR_RGB2GRAY) for f in frames]
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    forward = [dis.calc(a, b, None) for a, b in zip(grey, grey[1:])]
-    backward = [dis.calc(b, a, None) for a, b in zip(grey, grey[1:])]
-    p = [np.random.default_rng(t).random(SIZE[::-1], dtype=np.float32) for t in range(len(grey))]
-    inner = range(1, len(grey) - 1)
+    flow = _preset_flow(frames)
+    forward, backward = flow.forward, flow.backward
+    p = [np.random.default_rng(t).random(SIZE[::-1], dtype=np.float32) for t in range(len(frames))]
+    inner = range(1, len(frames) - 1)
     return _timed(lambda: [temporal_mean(p[t], (p[t - 1], backward[t - 1], forward[t - 1]),
                                          (p[t + 1], forward[t], backward[t])) for t in inner], len(inner))
 

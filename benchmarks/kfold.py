@@ -138,11 +138,6 @@ def key_value(text: str) -> tuple[str, object]:
         raise argparse.ArgumentTypeError(f"{key}: not YAML: " + " ".join(str(exc).split())) from None
 
 
-def key_values(items: list[tuple[str, object]]) -> dict:
-    """The ``(key, value)`` pairs of a ``key=value`` option (:func:`key_value`) as a dict."""
-    return dict(items)
-
-
 def _finite(value):
     return float(value) if value is not None and np.isfinite(value) else None
 
@@ -478,33 +473,34 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     for i in which:
         print(f"fold {i}: {', '.join(split[i])}")
-    rigidity = key_values(args.rigidity)
-    trajectories = key_values(args.trajectories)
-    flow = key_values(args.flow)
-    motion_net = key_values(args.motion_net)
+    rigidity = dict(args.rigidity)
+    trajectories = dict(args.trajectories)
+    flow = dict(args.flow)
+    motion_net = dict(args.motion_net)
     if args.what == "ed":
         per_sequence = run_ed([split[i] if i in which else [] for i in range(len(split))], rigidity, args.flow_cache,
                               trajectories, args.seed, flow, args.ed_whiten)
         measures = ("AUC",)
         meta = {"rigidity": rigidity, **({"ed_whiten": args.ed_whiten} if args.ed_whiten is not None else {})}
     else:
-        fusion = key_values(args.fusion)
-        appearance = key_values(args.appearance)
+        fusion = dict(args.fusion)
+        appearance = dict(args.appearance)
         plus = args.what == "epo+"
         preset = "epo+" if plus else args.preset
-        recipe_rigidity = key_values(args.recipe_rigidity)
-        recipe_model = key_values(args.recipe_model)
-        recipe_dropout = key_values(args.recipe_dropout)
-        run = key_values(args.run)
+        recipe_rigidity = dict(args.recipe_rigidity)
+        recipe_model = dict(args.recipe_model)
+        recipe_dropout = dict(args.recipe_dropout)
+        run = dict(args.run)
         seeds = tuple(int(s) for s in args.seeds.split(","))
         fusion_seeds = tuple(int(s) for s in args.fusion_seed.split(","))
-        crf = key_values(args.crf)
+        crf = dict(args.crf)
+        fusion_model, fusion_dropout = dict(args.fusion_model), dict(args.fusion_dropout)
         per_sequence = run_epo(split, out, args.jobs, args.refiner, which, rigidity, args.weights,
                                tuple(args.save.split(",")), preset, fusion, plus, recipe_rigidity, run, only,
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
                                args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share,
                                recipe_data, recipe_phases, args.fusion_maps, appearance, fusion_seeds, recipe_dropout,
-                               key_values(args.fusion_model), key_values(args.fusion_dropout))
+                               fusion_model, fusion_dropout)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -527,10 +523,10 @@ def main(argv=None) -> int:
             meta["seeds"] = list(seeds)
         if plus:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
-        if args.fusion_model:  # (kept out of the default's record: earlier reports still merge)
-            meta["fusion_model"] = key_values(args.fusion_model)
-        if args.fusion_dropout:  # (kept out of the default's record: earlier reports still merge)
-            meta["fusion_dropout"] = key_values(args.fusion_dropout)
+        if fusion_model:  # (kept out of the default's record: earlier reports still merge)
+            meta["fusion_model"] = fusion_model
+        if fusion_dropout:  # (kept out of the default's record: earlier reports still merge)
+            meta["fusion_dropout"] = fusion_dropout
         if args.fusion_maps != "own":  # (kept out of the default's record: earlier reports still merge)
             meta["fusion_maps"] = args.fusion_maps
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)

@@ -55,7 +55,7 @@ def warp_into(probability: np.ndarray, there: np.ndarray, back: np.ndarray) -> t
     ([0.0, 0.0, 1.0, 0.0, 0.0, 0.0], True)
     """
     there = np.asarray(there, np.float32)
-    gx, gy = _grid(tuple(there.shape[:2]))
+    gx, gy = _grid(there.shape[:2])
     mx, my = gx + there[..., 0], gy + there[..., 1]  # where each pixel of t lies in the other frame
     def sample(values):  # bilinear at (mx, my); outside the frame the nearest edge value
         return cv2.remap(np.ascontiguousarray(values, np.float32), mx, my, cv2.INTER_LINEAR,
