@@ -261,20 +261,23 @@ def test_a_fusion_with_another_appearance_stage_than_its_weights_is_a_spec_error
 
 
 def test_shipped_fusion_weights_match_their_catalogue_checksum_and_stay_small():
+    from eponet.weights import builtin_weights
     from tests.conftest import assert_shipped_weights
 
     assert_shipped_weights("epo-plus-davis", "fusion")
     assert_shipped_weights("epo-plus-davis-v1", "fusion")
     assert_shipped_weights("epo-plus-davis-lite2", "fusion")
+    assert_shipped_weights("epo-plus-davis-lite2-pair", "fusion")
     stage = ConvGRUStage()  # the default loads the built-in weights: the epo+ preset's, on Lite2 features
     assert stage.models[0].appearance_channels == 520 and stage.models[0].config["motion_residual"]
+    assert stage.sha256 == builtin_weights()["epo-plus-davis-lite2-pair"].sha256
     assert ConvGRUStage(weights="epo-plus-davis").models[0].appearance_channels == 472  # Lite0's
 
 
 def test_missing_builtin_weights_is_a_clear_error(tmp_path):
     with pytest.raises(MissingWeights, match="'epo-plus-davos': neither a built-in name \\(did you mean 'epo-plus-davis'\\?\\)"):
         ConvGRUStage(weights="epo-plus-davos")
-    with pytest.raises(MissingWeights, match="neither a built-in name \\(built-in: epo-plus-davis-lite2, "):
+    with pytest.raises(MissingWeights, match="neither a built-in name \\(built-in: epo-plus-davis-lite2-pair, epo-plus-davis-lite2, "):
         ConvGRUStage(weights="zzz")  # nothing near: no hint
     _save_weights(tmp_path / "fusion.pt", _model())
     with pytest.raises(MissingWeights, match="checksum mismatch"):

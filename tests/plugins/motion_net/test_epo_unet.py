@@ -157,8 +157,8 @@ def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
     """v5 was trained on shrunk means (``prior_groups`` 4, the recipe's), which the epo and epo-st presets paint;
     they average the v5 recipe with one more channel (the flow's local spread) and v5's flow-centred twin (held out
     better than v5 with that twin, which was better than v5 alone, where two v5 seeds were not). epo+ runs that
-    pair too (held out better than v5 alone under the same fusions), though its fusion (epo-plus-davis-lite2) was
-    trained on v5's maps of the shrunk means, with GRIC and no border prior."""
+    pair too (held out better than v5 alone under the same fusions), with a fusion (epo-plus-davis-lite2-pair) trained on
+    the pair's maps of the shrunk means, with GRIC and no border prior."""
 
     from eponet.core.registry import get_registry
     from eponet.weights import builtin_weights
@@ -179,7 +179,8 @@ def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
     assert fused["motion_net"] == {"plugin": "epo_unet", "weights": ["epo-davis-v5-spread", "epo-davis-v5-centred"]}
     assert fused["rigidity"] == {"plugin": "trifocal", "degeneracy": "gric", "border_prior": 0.0, "prior_groups": 4}
     meta = torch.load(builtin_weights()[fused["fusion"]["weights"]].file, map_location="cpu", weights_only=True)["meta"]
-    assert meta["motion_net"]["params"]["weights"] == "epo-davis-v5"  # the maps it was trained on (not the pair's)
+    # the maps it was trained on: the pair's, the ones the preset feeds it
+    assert meta["motion_net"]["params"]["weights"] == fused["motion_net"]["weights"]
     assert meta["appearance"]["plugin"] == fused["appearance"]["plugin"] == "efficientnet_lite2"
     # the authors' CRF weights, on the box around the object only (held out: the same J, 39% less CRF time), on the
     # fused map averaged along the flow (held out: T 0.223 -> 0.191 at equal J)
