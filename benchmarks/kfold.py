@@ -523,10 +523,8 @@ def main(argv=None) -> int:
             meta["seeds"] = list(seeds)
         if plus:
             meta["fusion_recipe"] = "examples/train-epo-plus.yaml"
-        if fusion_model:  # (kept out of the default's record: earlier reports still merge)
-            meta["fusion_model"] = fusion_model
-        if fusion_dropout:  # (kept out of the default's record: earlier reports still merge)
-            meta["fusion_dropout"] = fusion_dropout
+        # the fusion recipe's overrides, when given (kept out of the default's record: earlier reports still merge)
+        meta.update({k: v for k, v in (("fusion_model", fusion_model), ("fusion_dropout", fusion_dropout)) if v})
         if args.fusion_maps != "own":  # (kept out of the default's record: earlier reports still merge)
             meta["fusion_maps"] = args.fusion_maps
         if preset != "epo" or fusion:  # (kept out of the default's record: earlier reports still merge)

@@ -17,6 +17,9 @@ __all__ = ["ConvGRUStage", "load_fusion"]
 
 log = logging.getLogger(__name__)
 
+#: the built-in weights the stage loads by default: the epo+ preset's fusion
+DEFAULT_WEIGHTS = "epo-plus-davis-lite2-pair"
+
 
 def load_fusion(weights: str, sha256: str | None = None):
     """Build a :class:`~eponet.fusion.ConvGRUFusion` from a verified weights file (built-in name or path, as
@@ -56,7 +59,7 @@ class ConvGRUStage:
     probability of at least that value to the motion map (:func:`eponet.fusion.support.motion_supported`): the
     appearance shapes an object but does not add a look-alike that does not move."""
 
-    def __init__(self, *, weights: str | list[str] = "epo-plus-davis-lite2-pair", sha256: str | list[str] | None = None,
+    def __init__(self, *, weights: str | list[str] = DEFAULT_WEIGHTS, sha256: str | list[str] | None = None,
                  window: int | None = 32,
                  overlap: int = 8, blend: str = "centre", device: str = "auto", selftrain: float = 0.0,
                  selftrain_foreground: float = 0.9, selftrain_background: float = 0.05, selftrain_samples: int = 60000,
@@ -152,7 +155,7 @@ def eponet_stages():
             name="convgru",
             factory=ConvGRUStage,
             params=(
-                Param("weights", "weights", "epo-plus-davis-lite2-pair", "built-in weights name or a weights file (.pt "
+                Param("weights", "weights", DEFAULT_WEIGHTS, "built-in weights name or a weights file (.pt "
                       "from eponet train with task: fusion), with the appearance stage it was trained on "
                       "(epo-plus-davis-lite2-pair, epo-plus-davis-lite2: efficientnet_lite2; epo-plus-davis: "
                       "efficientnet_lite0); a list of them averages the fusions' "
