@@ -60,17 +60,15 @@ from .trifocal import (
     triplet_epipolar_distance,
     triplet_sampson_error,
 )
-from .triplets import (
+from .fits import (
     FittedModel,
     RobustSettings,
-    estimate_pair,
-    estimate_triplet,
     fit_fundamental,
     fit_homographies,
     fit_homography_pair,
     fit_trifocal,
-    is_static,
 )
+from .triplets import estimate_pair, estimate_triplet, is_static
 
 __all__ = [
     # consistency

@@ -10,7 +10,7 @@ import numpy as np
 from ..core.params import Param
 from ..core.types import FlowPair, RigidityResult, TrackWindow, Trajectories
 from .scoring import SAMPLING, SamplingHistory, check_rigidity_inputs, ed_maps_from_scores, frame_groups, score_frame_groups
-from .triplets import FittedModel, RobustSettings
+from .fits import FittedModel, RobustSettings
 
 __all__ = ["RigidityStage", "GROUP_PARAMS", "STATIC_PARAMS", "ROBUST_PARAMS", "GRIC_PARAMS"]
 

@@ -23,7 +23,7 @@ from .trajectories import (
     trajectory_ends,
     trajectory_positions,
 )
-from .triplets import FittedModel
+from .fits import FittedModel
 
 __all__ = [
     "check_rigidity_inputs",

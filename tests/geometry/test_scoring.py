@@ -5,7 +5,7 @@ import pytest
 
 from eponet.geometry.scoring import SamplingHistory, largest, score_frame_groups
 from eponet.geometry.trajectories import build_dense_trajectories
-from eponet.geometry.triplets import FittedModel
+from eponet.geometry.fits import FittedModel
 
 
 def test_history_lookup_store_keep_known_answers():

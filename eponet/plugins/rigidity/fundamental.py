@@ -7,7 +7,8 @@ import numpy as np
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
 from eponet.geometry.rigidity import GRIC_PARAMS, GROUP_PARAMS, ROBUST_PARAMS, STATIC_PARAMS, RigidityStage
-from eponet.geometry.triplets import FittedModel, estimate_pair
+from eponet.geometry.fits import FittedModel
+from eponet.geometry.triplets import estimate_pair
 
 __all__ = ["FundamentalRigidity", "eponet_stages"]
 

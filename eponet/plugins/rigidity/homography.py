@@ -6,7 +6,8 @@ import numpy as np
 
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.geometry.rigidity import GROUP_PARAMS, ROBUST_PARAMS, RigidityStage
-from eponet.geometry.triplets import FittedModel, estimate_triplet
+from eponet.geometry.fits import FittedModel
+from eponet.geometry.triplets import estimate_triplet
 
 __all__ = ["HomographyRigidity", "eponet_stages"]
 

@@ -7,7 +7,8 @@ import numpy as np
 from eponet.core.hookspecs import StageSpec, hookimpl
 from eponet.core.params import Param
 from eponet.geometry.rigidity import GRIC_PARAMS, GROUP_PARAMS, ROBUST_PARAMS, STATIC_PARAMS, RigidityStage
-from eponet.geometry.triplets import DEGENERACY, FittedModel, estimate_triplet
+from eponet.geometry.fits import FittedModel
+from eponet.geometry.triplets import DEGENERACY, estimate_triplet
 
 __all__ = ["TrifocalRigidity", "eponet_stages"]
 
