@@ -197,6 +197,24 @@ def _refine(fit_fn, resid_fn, model, e2, dof, settings: RobustSettings):
     return model, e2
 
 
+def _search_and_refine(solve, residual, all_residuals, fit_fn, n: int, sample_size: int, dof: int, rng,
+                       settings: RobustSettings, threshold_sq: float | None):
+    """The robust search over minimal samples, then :func:`_refine` on all ``n`` points.
+
+    ``residual(model, idx)`` scores a hypothesis on some points, ``all_residuals(model)`` on all of them and
+    ``fit_fn(inliers)`` refits linearly. Returns ``(model, e2, trials)``, or None when no hypothesis could be formed.
+    """
+    found = robust_search(
+        solve, residual, n, sample_size, rng, dof=dof, confidence=settings.confidence,
+        max_trials=settings.max_trials, threshold_sq=threshold_sq,
+        eval_points=settings.eval_points, min_sigma2=_trial_sigma2(settings),
+    )
+    if found is None:
+        return None
+    model, e2 = _refine(fit_fn, all_residuals, found.model, all_residuals(found.model), dof, settings)
+    return model, e2, found.trials
+
+
 def fit_trifocal(x1, x2, x3, rng: np.random.Generator, settings: RobustSettings = RobustSettings()):
     """Robust three-view epipolar geometry: six-point RANSAC ([HZ] Algorithm 20.1 inside Algorithm 4.5 /
     16.4) scored by the summed Sampson error of the derived ``F21, F31, F32`` in pixels, then the linear
@@ -238,21 +256,11 @@ def fit_trifocal(x1, x2, x3, rng: np.random.Generator, settings: RobustSettings 
         threshold_sq = 3 * settings.threshold**2
     else:  # MSAC at the noise floor (see RobustSettings.epipolar_msac), or LMedS without a floor
         threshold_sq = 3 * settings.min_sigma**2 if settings.epipolar_msac and settings.min_sigma > 0 else None
-    found = robust_search(
-        solve, residual, len(x1), 6, rng, dof=3, confidence=settings.confidence,
-        max_trials=settings.max_trials, threshold_sq=threshold_sq,
-        eval_points=settings.eval_points, min_sigma2=_trial_sigma2(settings),
-    )
-    if found is None:
-        return None
-    fs = found.model
-    e2 = triplet_sampson_error(*fs, x1, x2, x3)
-
     def fit_fn(inl):
         return fundamentals_from_trifocal(trifocal_linear(x1[inl], x2[inl], x3[inl]))
 
-    fs, e2 = _refine(fit_fn, lambda f: triplet_sampson_error(*f, x1, x2, x3), fs, e2, 3, settings)
-    return fs, e2, found.trials
+    return _search_and_refine(solve, residual, lambda f: triplet_sampson_error(*f, x1, x2, x3), fit_fn, len(x1), 6, 3,
+                              rng, settings, threshold_sq)
 
 
 def fit_homographies(x1, x2, x3, rng: np.random.Generator, settings: RobustSettings = RobustSettings()):
@@ -279,21 +287,11 @@ def fit_homographies(x1, x2, x3, rng: np.random.Generator, settings: RobustSetti
     def residual(hs, idx):
         return homography_triplet_error_sq(*hs, x1[idx], x2[idx], x3[idx])
 
-    found = robust_search(
-        solve, residual, len(x1), 4, rng, dof=4, confidence=settings.confidence,
-        max_trials=settings.max_trials, threshold_sq=None if settings.threshold is None else 4 * settings.threshold**2,
-        eval_points=settings.eval_points, min_sigma2=_trial_sigma2(settings),
-    )
-    if found is None:
-        return None
-    hs = found.model
-    e2 = homography_triplet_error_sq(*hs, x1, x2, x3)
-
     def fit_fn(inl):
         return homography_dlt(x1[inl], x2[inl]), homography_dlt(x1[inl], x3[inl])
 
-    hs, e2 = _refine(fit_fn, lambda h: homography_triplet_error_sq(*h, x1, x2, x3), hs, e2, 4, settings)
-    return hs, e2, found.trials
+    return _search_and_refine(solve, residual, lambda h: homography_triplet_error_sq(*h, x1, x2, x3), fit_fn, len(x1),
+                              4, 4, rng, settings, None if settings.threshold is None else 4 * settings.threshold**2)
 
 
 def _fundamental_opencv(x1, x2, rng, threshold):
@@ -353,15 +351,10 @@ def fit_homography_pair(x1, x2, rng: np.random.Generator, settings: RobustSettin
     def resid(h, idx):
         return transfer_error_sq(h, x1[idx], x2[idx]) / 2.0
 
-    found = robust_search(
-        solve, resid, len(x1), 4, rng, dof=2, confidence=settings.confidence, max_trials=settings.max_trials,
-        threshold_sq=None if settings.threshold is None else 2 * settings.threshold**2,
-        eval_points=settings.eval_points, min_sigma2=_trial_sigma2(settings),
-    )
+    found = _search_and_refine(solve, resid, lambda h: transfer_error_sq(h, x1, x2) / 2.0,
+                               lambda inl: homography_dlt(x1[inl], x2[inl]), len(x1), 4, 2, rng, settings,
+                               None if settings.threshold is None else 2 * settings.threshold**2)
     if found is None:
         return None
-    h = found.model
-    e2 = transfer_error_sq(h, x1, x2) / 2.0
-    h, e2 = _refine(lambda inl: homography_dlt(x1[inl], x2[inl]), lambda hh: transfer_error_sq(hh, x1, x2) / 2.0,
-                    h, e2, 2, settings)
+    h, e2, _ = found
     return (h,), e2
