@@ -157,7 +157,8 @@ def eponet_stages():
             params=(
                 Param("weights", "weights", DEFAULT_WEIGHTS, "built-in weights name or a weights file (.pt "
                       "from eponet train with task: fusion), with the appearance stage it was trained on "
-                      "(epo-plus-davis-lite2-pair, epo-plus-davis-lite2: efficientnet_lite2; epo-plus-davis: "
+                      "(epo-plus-davis-lite2-pair, epo-plus-davis-lite2: efficientnet_lite2; "
+                      "epo-plus-davis-lite2-pair-fine: efficientnet_lite2 at scale 1.5; epo-plus-davis: "
                       "efficientnet_lite0); a list of them averages the fusions' "
                       "probabilities", many=True),
                 Param("sha256", "str", None, "expected sha256 of a weights file (checked before loading); one per file "

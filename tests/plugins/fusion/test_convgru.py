@@ -268,6 +268,7 @@ def test_shipped_fusion_weights_match_their_catalogue_checksum_and_stay_small():
     assert_shipped_weights("epo-plus-davis-v1", "fusion")
     assert_shipped_weights("epo-plus-davis-lite2", "fusion")
     assert_shipped_weights("epo-plus-davis-lite2-pair", "fusion")
+    assert_shipped_weights("epo-plus-davis-lite2-pair-fine", "fusion")
     stage = ConvGRUStage()  # the default loads the built-in weights: the epo+ preset's, on Lite2 features
     assert stage.models[0].appearance_channels == 520 and stage.models[0].config["motion_residual"]
     assert stage.sha256 == builtin_weights()["epo-plus-davis-lite2-pair"].sha256
@@ -277,18 +278,38 @@ def test_shipped_fusion_weights_match_their_catalogue_checksum_and_stay_small():
 def test_missing_builtin_weights_is_a_clear_error(tmp_path):
     with pytest.raises(MissingWeights, match="'epo-plus-davos': neither a built-in name \\(did you mean 'epo-plus-davis'\\?\\)"):
         ConvGRUStage(weights="epo-plus-davos")
-    with pytest.raises(MissingWeights, match="neither a built-in name \\(built-in: epo-plus-davis-lite2-pair, epo-plus-davis-lite2, "):
+    with pytest.raises(MissingWeights, match="neither a built-in name \\(built-in: epo-plus-davis-lite2-pair, epo-plus-davis-lite2-pair-fine, epo-plus-davis-lite2, "):
         ConvGRUStage(weights="zzz")  # nothing near: no hint
     _save_weights(tmp_path / "fusion.pt", _model())
     with pytest.raises(MissingWeights, match="checksum mismatch"):
         ConvGRUStage(weights=str(tmp_path / "fusion.pt"), sha256="0" * 64)
 
 
-def test_epo_plus_preset_with_the_shipped_weights_on_real_davis_frames(tmp_path, shared_data):
-    """The ``epo+`` preset end to end on the two real 480p DAVIS sequences of the shared data, processed at scale
+def test_epo_plus_fine_runs_a_fusion_trained_on_its_grid():
+    """``epo+fine`` is ``epo+`` with the backbone on the frames at 1.5x, under a fusion trained on that grid from
+    the maps of the pair the preset runs; everything else is epo+'s."""
+    from eponet.core.registry import get_registry
+    from eponet.weights import builtin_weights
+
+    registry = get_registry()
+    plus, fine = registry.resolve_preset("epo+"), registry.resolve_preset("epo+fine")
+    assert fine["appearance"] == {"plugin": "efficientnet_lite2", "scale": 1.5}
+    assert {k: v for k, v in fine["fusion"].items() if k != "weights"} == {
+        k: v for k, v in plus["fusion"].items() if k != "weights"}
+    assert {k: v for k, v in fine.items() if k not in ("appearance", "fusion")} == {
+        k: v for k, v in plus.items() if k not in ("appearance", "fusion")}
+    meta = torch.load(builtin_weights()[fine["fusion"]["weights"]].file, map_location="cpu", weights_only=True)["meta"]
+    assert meta["appearance"]["plugin"] == "efficientnet_lite2" and meta["appearance"]["params"]["scale"] == 1.5
+    assert meta["motion_net"]["params"]["weights"] == fine["motion_net"]["weights"]
+    assert meta["spec"]["phases"][0]["data"]["davis"]["exclude"] == []  # all 30 train sequences
+
+
+@pytest.mark.parametrize("preset", ["epo+", "epo+fine"])
+def test_epo_plus_preset_with_the_shipped_weights_on_real_davis_frames(tmp_path, shared_data, preset):
+    """The ``epo+`` presets end to end on the two real 480p DAVIS sequences of the shared data, processed at scale
     0.5 as in the paper. Both are training sequences of the shipped weights, so this checks the integration
     (weights, feature scale and normalisation, motion maps, windows, CRF), not generalisation: the v4 pair alone
-    scored 0.80 J here, the preset 0.83 (0.82 with the v4 pair and the Lite0 fusion until 2026-12-06)."""
+    scored 0.80 J here, epo+ 0.84 (0.82 with the v4 pair and the Lite0 fusion until 2026-12-06), epo+fine 0.85."""
     import json
     import subprocess
     import sys
@@ -297,7 +318,7 @@ def test_epo_plus_preset_with_the_shipped_weights_on_real_davis_frames(tmp_path,
     root = Path(__file__).resolve().parents[3]
     out = tmp_path / "davis"
     result = subprocess.run(
-        [sys.executable, "-m", "eponet.run", str(root / "examples" / "demo.yaml"), "-q", "--set", "preset=epo+",
+        [sys.executable, "-m", "eponet.run", str(root / "examples" / "demo.yaml"), "-q", "--set", f"preset={preset}",
          "--set", f"input.path={shared_data / 'davis2016-train' / 'DAVIS'}", "--set", "input.resolution=480p",
          "--set", "input.sequences=[rollerblade,motorbike]", "--set", "input.scale=0.5",
          "--set", f"output.dir={out}", "--set", "output.save=[masks]", "--set", f"cache.dir={tmp_path / 'cache'}"],
