@@ -245,11 +245,13 @@ def parse_spec(
     # preset
     preset_name = document.get("preset", registry.default_preset)
     preset_stages: dict[str, dict] = {}
+    preset_known = False  # without the preset's stages, what the composition lacks is not known: not reported
     if not isinstance(preset_name, str):
         problems.append(f"preset: expected a preset name ({', '.join(registry.presets)}), got {preset_name!r}")
     else:
         try:
             preset_stages = registry.resolve_preset(preset_name)
+            preset_known = True
         except PluginNotFound as exc:
             problems.extend(exc.problems)
 
@@ -356,19 +358,22 @@ def parse_spec(
 
     # the composition must be complete (the stage graph says what each stage and output needs)
     present = set(merged)
-    problems.extend(missing_needs({kind: (stages[kind].params if kind in stages else merged[kind]) for kind in merged}))
-    if "flow" not in present:
-        problems.append("stages.flow: every pipeline needs a flow stage")
-    made = producers(present)
-    for item in save if isinstance(save, list) else []:
-        need = OUTPUTS.get(item)
-        if need and need not in made:
-            problems.append(f"output.save: {item!r} needs a {producer_of(need)} stage, which preset {preset_name!r} with these stages does not have")
+    if preset_known:
+        problems.extend(missing_needs({kind: (stages[kind].params if kind in stages else merged[kind])
+                                       for kind in merged}))
+        if "flow" not in present:
+            problems.append("stages.flow: every pipeline needs a flow stage")
+        made = producers(present)
+        for item in save if isinstance(save, list) else []:
+            need = OUTPUTS.get(item)
+            if need and need not in made:
+                problems.append(f"output.save: {item!r} needs a {producer_of(need)} stage, which preset "
+                                f"{preset_name!r} with these stages does not have")
 
     evaluate = document.get("evaluate")
     if evaluate is not None:
         evaluate = _validate_evaluate(evaluate, resolve_path, problems)
-        if evaluate is not None and "refiner" not in present:
+        if evaluate is not None and preset_known and "refiner" not in present:
             problems.append("evaluate: scoring needs masks, i.e. a refiner stage")
         if evaluate is not None and evaluate.get("dataset") == "generic" and not evaluate.get("masks"):
             problems.append("evaluate.masks: dataset generic needs the folder of ground-truth masks")

@@ -73,6 +73,19 @@ def test_unknown_preset_suggests(frames_dir, tmp_path):
         parse_spec(_flow_only(frames_dir, tmp_path / "o", preset="geometri"))
 
 
+def test_an_unknown_preset_is_the_only_problem_reported(frames_dir, tmp_path):
+    """Without the preset's stages nothing can be said of what the composition lacks (a flow stage, the producers
+    of the saved outputs, masks to score): one line, not a cascade."""
+    doc = _flow_only(frames_dir, tmp_path / "o", preset="epo+fin")
+    doc["stages"] = {}
+    doc["output"]["save"] = ["masks", "saliency", "ed"]
+    doc["evaluate"] = {"dataset": "generic", "masks": str(frames_dir)}
+    with pytest.raises(SpecError) as caught:
+        parse_spec(doc)
+    assert caught.value.problems == [
+        "preset: unknown preset 'epo+fin' (did you mean 'epo+fine'?); presets: geometry, epo, epo-st, epo+, epo+fine"]
+
+
 def test_missing_plugin_of_a_preset_is_reported(frames_dir, tmp_path):
     doc = _flow_only(frames_dir, tmp_path / "o")
     doc["stages"] = {"trajectories": None, "rigidity": None, "motion_net": {"plugin": "nonexistent_net"}}
