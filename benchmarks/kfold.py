@@ -34,7 +34,7 @@ as the paper's Table 3, and any other attribute with ``--attributes``). Usage::
     python benchmarks/kfold.py --what epo+ --weights runs/kfold-epo --out runs/kfold-epo-plus-seed1 --seeds 0,1 --seed 1
         # the same networks with another RANSAC / self-training seed: how far the figures move by chance
     python benchmarks/kfold.py --what ed [--rigidity degeneracy=none] [--trajectories cull_collisions=true] \
-        [--flow finest_scale=0] [--flow-cache DIR] [--ed-whiten EPS]
+        [--flow finest_scale=0] [--flow-cache DIR] [--ed-whiten EPS] [--oracle]
         # the ED on OpenCV's DIS medium as it is (finest level 1), or with the dis stage's settings
         # (finest_scale=0: the presets' flow)
     python benchmarks/kfold.py --what epo --weights runs/kfold-epo --out runs/kfold-epo-bf16 --motion-net precision=bfloat16
@@ -196,11 +196,13 @@ def fold_sources(sources: list[dict], i: int, held_out: list[str]) -> list[dict]
 
 
 def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, trajectories: dict | None = None,
-           seed: int = 0, flow: dict | None = None, whiten: float | None = None) -> dict[str, dict]:
+           seed: int = 0, flow: dict | None = None, whiten: float | None = None,
+           oracle: bool = False) -> dict[str, dict]:
     """ED ROC AUC per sequence (no training, so the folds only label the rows), the stage seeded with ``seed``;
     ``flow``: settings of the ``dis`` flow stage (default: OpenCV's ``medium`` as it is, finest level 1, where the
     presets run level 0: ``finest_scale=0``); ``whiten``: score ED over the local flow spread (see
-    :func:`geometry_davis_auc.sequence_auc`)."""
+    :func:`geometry_davis_auc.sequence_auc`); ``oracle``: each group's model fitted on the annotated background
+    (:func:`geometry_davis_auc.background_oracle`), the ceiling of any fit of the stage's model."""
     import logging
 
     import geometry_davis_auc as g
@@ -212,7 +214,7 @@ def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, traj
     for i, names in enumerate(split):
         for name in names:
             r = g.sequence_auc(name, ("default",), flow_cache=flow_cache, trajectories=trajectories, seed=seed,
-                               flow_settings=flow, whiten=whiten)
+                               flow_settings=flow, whiten=whiten, oracle=oracle)
             out[name] = {"fold": i, "AUC": r["default"], "models": r["default_models"]}
             print(f"  {name:<18} AUC {r['default']:.3f} {r['default_models']}", flush=True)
     return out
@@ -433,6 +435,8 @@ def main(argv=None) -> int:
     parser.add_argument("--motion-net", nargs="*", default=[], type=key_value,
                         help="epo: key=value settings of the fold's epo_unet stage, e.g. precision=bfloat16")
     parser.add_argument("--flow-cache", type=Path, default=None)
+    parser.add_argument("--oracle", action="store_true",
+                        help="ed: fit each frame group's model on the annotated background only (the fits' ceiling)")
     parser.add_argument("--ed-whiten", type=float, default=None, metavar="EPS",
                         help="(ed) score ED / (EPS + the local spread of the flow in px) instead of ED")
     parser.add_argument("--seed", type=int, default=0,
@@ -479,9 +483,10 @@ def main(argv=None) -> int:
     motion_net = dict(args.motion_net)
     if args.what == "ed":
         per_sequence = run_ed([split[i] if i in which else [] for i in range(len(split))], rigidity, args.flow_cache,
-                              trajectories, args.seed, flow, args.ed_whiten)
+                              trajectories, args.seed, flow, args.ed_whiten, args.oracle)
         measures = ("AUC",)
-        meta = {"rigidity": rigidity, **({"ed_whiten": args.ed_whiten} if args.ed_whiten is not None else {})}
+        meta = {"rigidity": rigidity, **({"ed_whiten": args.ed_whiten} if args.ed_whiten is not None else {}),
+                **({"oracle": "background"} if args.oracle else {})}
     else:
         fusion = dict(args.fusion)
         appearance = dict(args.appearance)

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import importlib.util
 import inspect
 import json
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -42,6 +44,12 @@ def rotation_video():
     video = rotation_scene()
     flow = FlowPair(*dis_flow(video.frames))
     return video, flow, DenseTrajectories().build(flow)
+
+
+@pytest.fixture(scope="module")
+def large_object_video():
+    """An object covering about half of the frame from the first frame on (the motocross case)."""
+    return _scene(large_object_scene)
 
 
 def _scene(make):
@@ -230,13 +238,30 @@ def test_static_camera_with_moving_texture():
     assert _mean_auc(result.ed, video.masks | video.distractors) >= 0.95
 
 
-def test_border_prior_keeps_background_model_under_a_large_object():
+def test_border_prior_keeps_background_model_under_a_large_object(large_object_video):
     """An object covering about half of the frame from the first frame on (the motocross case): uniformly
     sampled, the fit takes the object for the background (AUC near 0); the border prior of guided sampling
     fits the background, which fills the frame's edges."""
-    video, flow, traj = _scene(large_object_scene)
+    video, flow, traj = large_object_video
     assert 0.4 <= video.masks.mean() <= 0.6
     result = trifocal.TrifocalRigidity().score(traj, flow, np.random.default_rng(0))
     assert _mean_auc(result.ed, video.masks) >= 0.95
     plain = trifocal.TrifocalRigidity(border_prior=0.0).score(traj, flow, np.random.default_rng(0))
     assert _mean_auc(plain.ed, video.masks) < 0.5
+
+
+def test_background_oracle_is_the_ceiling_of_the_fits(large_object_video):
+    """``benchmarks/geometry_davis_auc.py --oracle`` fits each triplet's model on the annotated background only:
+    where the plain fit takes the large object for the background (AUC below 0.5), the oracle's is the rigid
+    scene's, and the stage's own fit with the border prior comes within 0.02 of it."""
+    path = Path(__file__).resolve().parents[3] / "benchmarks" / "geometry_davis_auc.py"
+    spec = importlib.util.spec_from_file_location("geometry_davis_auc", path)
+    davis = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(davis)
+    video, flow, traj = large_object_video
+    stage = davis.background_oracle(trifocal.TrifocalRigidity(border_prior=0.0), video.masks)
+    oracle = _mean_auc(stage.score(traj, flow, np.random.default_rng(0)).ed, video.masks)
+    plain = trifocal.TrifocalRigidity(border_prior=0.0).score(traj, flow, np.random.default_rng(0))
+    guided = trifocal.TrifocalRigidity().score(traj, flow, np.random.default_rng(0))
+    assert oracle >= 0.95 > 0.5 > _mean_auc(plain.ed, video.masks)
+    assert _mean_auc(guided.ed, video.masks) >= oracle - 0.02
