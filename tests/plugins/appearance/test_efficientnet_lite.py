@@ -49,6 +49,23 @@ def test_features_have_stride_8_and_472_channels(stage):
     assert not any(p.requires_grad for p in stage.model.parameters()) and not stage.model.training
 
 
+def test_grid_scale_resamples_the_backbone_features_to_a_finer_grid(stage):
+    """``grid_scale`` 1.5: the grid of frames at 1.5x (ceil(96/8) x ceil(150/8)) from the backbone's features of
+    the frames as they are, bilinearly resampled; the backbone's own output is unchanged."""
+    import torch.nn.functional as F
+
+    frames = np.random.default_rng(1).integers(0, 256, (2, 64, 100, 3), dtype=np.uint8)
+    plain = stage.features(_video(frames))
+    stage.grid_scale = 1.5
+    try:
+        fine = stage.features(_video(frames))
+    finally:
+        stage.grid_scale = None
+    assert fine.shape == (2, 472, 12, 19) and plain.shape == (2, 472, 8, 13)
+    expected = F.interpolate(torch.from_numpy(plain), size=(12, 19), mode="bilinear", align_corners=False).numpy()
+    np.testing.assert_allclose(fine, expected, rtol=1e-5, atol=1e-5)
+
+
 def test_weights_are_the_checksummed_pretrained_file(stage):
     path, digest = lite.verified_weights(lite.VARIANTS["lite0"])
     assert digest == lite.VARIANTS["lite0"].sha256 == stage.sha256
