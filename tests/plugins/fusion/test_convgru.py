@@ -293,7 +293,8 @@ def test_epo_plus_fine_runs_a_fusion_trained_on_its_grid():
 
     registry = get_registry()
     plus, fine = registry.resolve_preset("epo+"), registry.resolve_preset("epo+fine")
-    assert fine["appearance"] == {"plugin": "efficientnet_lite2", "scale": 1.5}
+    assert fine["appearance"] == {**plus["appearance"], "scale": 1.5}
+    assert plus["appearance"] == {"plugin": "efficientnet_lite2", "precision": "auto"}
     assert {k: v for k, v in fine["fusion"].items() if k != "weights"} == {
         k: v for k, v in plus["fusion"].items() if k != "weights"}
     assert {k: v for k, v in fine.items() if k not in ("appearance", "fusion")} == {
