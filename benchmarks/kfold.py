@@ -459,6 +459,8 @@ def main(argv=None) -> int:
                         "network must exist: a scouting measure, see run_epo)")
     parser.add_argument("--attributes", nargs="*", default=list(ATTRIBUTES))
     args = parser.parse_args(argv)
+    if args.oracle and args.what != "ed":
+        parser.error("--oracle fits the ED's models on the annotation: it goes with --what ed only")
     if not (DAVIS / "ImageSets" / "train.txt").exists():
         print(f"DAVIS-2016 train data not found under {DAVIS} (set EPONET_SHARED_DATA)")
         return 1
