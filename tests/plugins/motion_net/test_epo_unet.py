@@ -175,8 +175,9 @@ def test_the_epo_preset_runs_the_networks_trained_on_its_ed():
     assert selftrained["rigidity"] == {"plugin": "trifocal", "prior_groups": 4}  # epo's ED (the stage's defaults)
     assert epo["rigidity"] == selftrained["rigidity"]
     fused = registry.resolve_preset("epo+")
-    # epo's pair, in float32 as measured under the fusion
-    assert fused["motion_net"] == {"plugin": "epo_unet", "weights": ["epo-davis-v5-spread", "epo-davis-v5-centred"]}
+    # epo's pair and precision (bfloat16 where the CPU has it: held out under the fusion, the same J as float32)
+    assert fused["motion_net"] == epo["motion_net"] == {
+        "plugin": "epo_unet", "weights": ["epo-davis-v5-spread", "epo-davis-v5-centred"], "precision": "auto"}
     assert fused["rigidity"] == {"plugin": "trifocal", "degeneracy": "gric", "border_prior": 0.0, "prior_groups": 4}
     meta = torch.load(builtin_weights()[fused["fusion"]["weights"]].file, map_location="cpu", weights_only=True)["meta"]
     # the maps it was trained on: the pair's, the ones the preset feeds it
