@@ -197,13 +197,17 @@ def _refine(fit_fn, resid_fn, model, e2, dof, settings: RobustSettings):
     return model, e2
 
 
-def _search_and_refine(solve, residual, all_residuals, fit_fn, n: int, sample_size: int, dof: int, rng,
+def _search_and_refine(solve, residual, fit_fn, n: int, sample_size: int, dof: int, rng,
                        settings: RobustSettings, threshold_sq: float | None):
     """The robust search over minimal samples, then :func:`_refine` on all ``n`` points.
 
-    ``residual(model, idx)`` scores a hypothesis on some points, ``all_residuals(model)`` on all of them and
+    ``residual(model, idx)`` scores a hypothesis on the points ``idx`` (``slice(None)``: all of them) and
     ``fit_fn(inliers)`` refits linearly. Returns ``(model, e2, trials)``, or None when no hypothesis could be formed.
     """
+
+    def all_residuals(model):
+        return residual(model, slice(None))
+
     found = robust_search(
         solve, residual, n, sample_size, rng, dof=dof, confidence=settings.confidence,
         max_trials=settings.max_trials, threshold_sq=threshold_sq,
@@ -259,8 +263,7 @@ def fit_trifocal(x1, x2, x3, rng: np.random.Generator, settings: RobustSettings 
     def fit_fn(inl):
         return fundamentals_from_trifocal(trifocal_linear(x1[inl], x2[inl], x3[inl]))
 
-    return _search_and_refine(solve, residual, lambda f: triplet_sampson_error(*f, x1, x2, x3), fit_fn, len(x1), 6, 3,
-                              rng, settings, threshold_sq)
+    return _search_and_refine(solve, residual, fit_fn, len(x1), 6, 3, rng, settings, threshold_sq)
 
 
 def fit_homographies(x1, x2, x3, rng: np.random.Generator, settings: RobustSettings = RobustSettings()):
@@ -290,8 +293,8 @@ def fit_homographies(x1, x2, x3, rng: np.random.Generator, settings: RobustSetti
     def fit_fn(inl):
         return homography_dlt(x1[inl], x2[inl]), homography_dlt(x1[inl], x3[inl])
 
-    return _search_and_refine(solve, residual, lambda h: homography_triplet_error_sq(*h, x1, x2, x3), fit_fn, len(x1),
-                              4, 4, rng, settings, None if settings.threshold is None else 4 * settings.threshold**2)
+    return _search_and_refine(solve, residual, fit_fn, len(x1), 4, 4, rng, settings,
+                              None if settings.threshold is None else 4 * settings.threshold**2)
 
 
 def _fundamental_opencv(x1, x2, rng, threshold):
@@ -351,9 +354,8 @@ def fit_homography_pair(x1, x2, rng: np.random.Generator, settings: RobustSettin
     def resid(h, idx):
         return transfer_error_sq(h, x1[idx], x2[idx]) / 2.0
 
-    found = _search_and_refine(solve, resid, lambda h: transfer_error_sq(h, x1, x2) / 2.0,
-                               lambda inl: homography_dlt(x1[inl], x2[inl]), len(x1), 4, 2, rng, settings,
-                               None if settings.threshold is None else 2 * settings.threshold**2)
+    found = _search_and_refine(solve, resid, lambda inl: homography_dlt(x1[inl], x2[inl]), len(x1), 4, 2, rng,
+                               settings, None if settings.threshold is None else 2 * settings.threshold**2)
     if found is None:
         return None
     h, e2, _ = found

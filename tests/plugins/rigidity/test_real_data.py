@@ -6,22 +6,16 @@ The evaluation protocols are the benchmark scripts' (``benchmarks/geometry_hopki
 
 from __future__ import annotations
 
-import importlib.util
 import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.benchmarks import load_benchmark
+
 REPO = Path(__file__).resolve().parents[3]
 DATA = Path(os.environ.get("EPONET_SHARED_DATA") or REPO / ".." / "shared" / "data")
-
-
-def _benchmark(name: str):
-    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.mark.slow
@@ -37,7 +31,7 @@ def test_hopkins155_background_classification():
     On all 156 sequences the benchmark measures a mean of about 12-13% (see the report); the subset's
     value and every sequence's are printed on failure.
     """
-    hop = _benchmark("geometry_hopkins")
+    hop = load_benchmark("geometry_hopkins")
     hop.HOPKINS = DATA / "hopkins155" / "Hopkins155"
     if not hop.HOPKINS.is_dir():
         pytest.skip(f"Hopkins155 not found at {hop.HOPKINS} (set EPONET_SHARED_DATA)")
@@ -56,7 +50,7 @@ def test_davis_ed_separates_moving_objects():
     sequences at 427x240 (266 frames; two of them, surf and motocross-bumps, are among the hardest: dynamic
     water, a fast pan with motion blur and an object that grows to a third of the frame). The benchmark
     reports all 30 sequences and the other variants."""
-    davis = _benchmark("geometry_davis_auc")
+    davis = load_benchmark("geometry_davis_auc")
     davis.DAVIS = DATA / "davis2016-train" / "DAVIS"
     if not (davis.DAVIS / "Annotations" / "480p").is_dir():
         pytest.skip(f"DAVIS-2016 train not found at {davis.DAVIS} (set EPONET_SHARED_DATA)")

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import importlib.util
 import inspect
 import json
 import logging
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +14,7 @@ from eponet.core.protocols import RigidityModel
 from eponet.core.types import FlowPair
 from eponet.plugins.rigidity import fundamental, homography, trifocal
 from eponet.plugins.trajectories.dense import DenseTrajectories
+from tests.benchmarks import load_benchmark
 from tests.geometry.scenes import (
     dis_flow,
     large_object_scene,
@@ -254,10 +253,7 @@ def test_background_oracle_is_the_ceiling_of_the_fits(large_object_video):
     """``benchmarks/geometry_davis_auc.py --oracle`` fits each triplet's model on the annotated background only:
     where the plain fit takes the large object for the background (AUC below 0.5), the oracle's is the rigid
     scene's, and the stage's own fit with the border prior comes within 0.02 of it."""
-    path = Path(__file__).resolve().parents[3] / "benchmarks" / "geometry_davis_auc.py"
-    spec = importlib.util.spec_from_file_location("geometry_davis_auc", path)
-    davis = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(davis)
+    davis = load_benchmark("geometry_davis_auc")
     video, flow, traj = large_object_video
     stage = davis.background_oracle(trifocal.TrifocalRigidity(border_prior=0.0), video.masks)
     oracle = _mean_auc(stage.score(traj, flow, np.random.default_rng(0)).ed, video.masks)
