@@ -7,14 +7,20 @@ fused map that holds at least one pixel of clear motion saliency, and lowers the
 value (so where the motion map saw nothing, nothing is left). A frame in which no region has support keeps its
 fused map as it is: the fusion's memory carries an object through frames where it stops or blurs, and those are
 the frames the motion map misses.
+
+:func:`motion_filled` is the converse for the inside of an object: on a fine appearance grid the fusion can lose
+the middle of a large object of even texture (a bear's flank) while the motion map holds it. Inside the convex
+hull of each fused region with motion support, it gives back the motion map's foreground; what lies outside
+every such hull (spray, ripples, a screen far from the object) stays as the fusion left it.
 """
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["motion_supported"]
+__all__ = ["motion_supported", "motion_filled"]
 
 
 def motion_supported(probability: np.ndarray, motion: np.ndarray, support: float, level: float = 0.5) -> np.ndarray:
@@ -60,4 +66,59 @@ def motion_supported(probability: np.ndarray, motion: np.ndarray, support: float
         keep[0] = True  # (label 0, below the level, is never lowered)
         lowered = ~keep[labels]
         out[t][lowered] = np.minimum(out[t][lowered], motion[t][lowered])
+    return out
+
+
+def motion_filled(probability: np.ndarray, motion: np.ndarray, support: float, fill: float, share: float = 0.0,
+                  level: float = 0.5) -> np.ndarray:
+    """The fused ``probability`` with the ``motion`` map's foreground restored inside each supported object.
+
+    Parameters
+    ----------
+    probability : float array (F, H, W)
+        The fused foreground probability, in [0, 1].
+    motion : float array (F, H, W)
+        The motion net's foreground probability on the same grid.
+    support : float
+        A region is an object when its largest motion probability reaches this.
+    fill : float
+        Inside an object's convex hull, a pixel whose motion probability reaches this is given back ...
+    share : float
+        ... when there are at least this many such pixels at or below ``level`` per pixel of the region (a lost
+        part of the object, not the motion map's blur along its outline).
+    level : float
+        Regions are the 8-connected components of ``probability > level``.
+
+    Returns
+    -------
+    float32 array (F, H, W): a new array; inside the convex hull of each supported region that lost enough, a
+    pixel with ``motion >= fill`` takes ``max(probability, motion)``; every other pixel keeps its probability.
+
+    >>> p = np.zeros((1, 7, 12), np.float32); p[0, 1:6, 1:6] = 0.9; p[0, 2:6, 2:5] = 0.1  # a C open at the bottom
+    >>> m = np.zeros_like(p); m[0, 1:6, 1:6] = 0.8; m[0, 1:6, 8:11] = 0.8  # the whole square, and motion elsewhere
+    >>> out = motion_filled(p, m, support=0.5, fill=0.5)
+    >>> out[0, 2:6, 2:5].min().item(), out[0, 1:6, 8:11].max().item()  # filled; the far motion stays out
+    (0.800000011920929, 0.0)
+    """
+    if probability.shape != motion.shape or probability.ndim != 3:
+        raise ValueError(f"probability and motion must both be (F, H, W), got {probability.shape} and {motion.shape}")
+    out = np.array(probability, np.float32, copy=True)
+    structure = np.ones((3, 3), bool)
+    for t in range(len(out)):
+        labels, count = ndimage.label(out[t] > level, structure=structure)
+        if count == 0:
+            continue
+        supported = np.zeros(count + 1, bool)
+        supported[labels[motion[t] >= support]] = True
+        supported[0] = False
+        boxes = ndimage.find_objects(labels)
+        for region in np.flatnonzero(supported):
+            rows, cols = boxes[region - 1]
+            inside = labels[rows, cols] == region
+            hull = np.zeros(inside.shape, np.uint8)
+            cv2.fillConvexPoly(hull, cv2.convexHull(cv2.findNonZero(inside.astype(np.uint8))), 1)
+            lost = (hull > 0) & (motion[t][rows, cols] >= fill) & ~(out[t][rows, cols] > level)
+            if lost.sum() >= share * inside.sum():
+                view = out[t][rows, cols]
+                view[lost] = np.maximum(view[lost], motion[t][rows, cols][lost])
     return out

@@ -57,7 +57,11 @@ class ConvGRUStage:
 
     ``motion_support`` (off by default) then lowers each foreground region of the result that holds no motion
     probability of at least that value to the motion map (:func:`eponet.fusion.support.motion_supported`): the
-    appearance shapes an object but does not add a look-alike that does not move."""
+    appearance shapes an object but does not add a look-alike that does not move. ``motion_fill`` (off by default)
+    then gives back, inside the convex hull of each region with motion support (``motion_support``, or 0.5 when
+    that is off), the pixels whose motion probability reaches ``motion_fill``, where they are at least
+    ``motion_fill_share`` of the region's size (:func:`eponet.fusion.support.motion_filled`): nor does the
+    appearance cut the middle out of an object that moves."""
 
     def __init__(self, *, weights: str | list[str] = DEFAULT_WEIGHTS, sha256: str | list[str] | None = None,
                  window: int | None = 32,
@@ -65,7 +69,8 @@ class ConvGRUStage:
                  selftrain_foreground: float = 0.9, selftrain_background: float = 0.05, selftrain_samples: int = 60000,
                  selftrain_l2: float = 1e-3, selftrain_foreground_share: float = 0.0,
                  selftrain_foreground_floor: float = 0.5, selftrain_background_motion: float | None = None,
-                 motion_support: float | None = None):
+                 motion_support: float | None = None, motion_fill: float | None = None,
+                 motion_fill_share: float = 0.1):
         self.models, self.sha256 = load_each(load_fusion, weights, sha256)
         channels = {model.appearance_channels for model in self.models}
         if len(channels) > 1:
@@ -77,7 +82,7 @@ class ConvGRUStage:
                               samples=selftrain_samples, l2=selftrain_l2, foreground_share=selftrain_foreground_share,
                               foreground_floor=selftrain_foreground_floor,
                               background_motion=selftrain_background_motion)
-        self.motion_support = motion_support
+        self.motion_support, self.motion_fill, self.motion_fill_share = motion_support, motion_fill, motion_fill_share
 
     def fuse(self, features: np.ndarray, saliency: np.ndarray) -> np.ndarray:
         """Foreground probability float32 ``(F, H, W)`` from features ``(F, C, h, w)`` and saliency ``(F, H, W)``."""
@@ -110,6 +115,11 @@ class ConvGRUStage:
             from eponet.fusion.support import motion_supported
 
             out = motion_supported(out, saliency, self.motion_support)
+        if self.motion_fill is not None:
+            from eponet.fusion.support import motion_filled
+
+            support = 0.5 if self.motion_support is None else self.motion_support
+            out = motion_filled(out, saliency, support, self.motion_fill, self.motion_fill_share)
         return out
 
 
@@ -180,6 +190,12 @@ def eponet_stages():
                 Param("motion_support", "float", None, "a fused foreground region whose motion probability never "
                       "reaches this falls to the motion map (null = off; a frame without any supported region "
                       "keeps its fused map)", minimum=0.0, maximum=1.0, nullable=True),
+                Param("motion_fill", "float", None, "inside the convex hull of each fused region with motion "
+                      "support, a pixel whose motion probability reaches this is raised to it (null = off)",
+                      minimum=0.0, maximum=1.0, nullable=True),
+                Param("motion_fill_share", "float", 0.1, "motion_fill gives back an object's pixels only where they "
+                      "are at least this share of the region's size (a lost part, not the motion map's blur)",
+                      minimum=0.0),
             ),
             doc="EpO+ fusion: bottleneck appearance features + motion map through a bidirectional ConvGRU",
             check=_check,

@@ -287,7 +287,8 @@ def test_missing_builtin_weights_is_a_clear_error(tmp_path):
 
 def test_epo_plus_fine_runs_a_fusion_trained_on_its_grid():
     """``epo+fine`` is ``epo+`` with the backbone on the frames at 1.5x, under a fusion trained on that grid from
-    the maps of the pair the preset runs; everything else is epo+'s."""
+    the maps of the pair the preset runs, whose lost middles of moving objects it gives back (``motion_fill``);
+    everything else is epo+'s."""
     from eponet.core.registry import get_registry
     from eponet.weights import builtin_weights
 
@@ -296,7 +297,8 @@ def test_epo_plus_fine_runs_a_fusion_trained_on_its_grid():
     assert fine["appearance"] == {**plus["appearance"], "scale": 1.5}
     assert plus["appearance"] == {"plugin": "efficientnet_lite2", "precision": "auto"}
     assert {k: v for k, v in fine["fusion"].items() if k != "weights"} == {
-        k: v for k, v in plus["fusion"].items() if k != "weights"}
+        **{k: v for k, v in plus["fusion"].items() if k != "weights"}, "motion_fill": 0.9}
+    assert "motion_fill" not in plus["fusion"]
     assert {k: v for k, v in fine.items() if k not in ("appearance", "fusion")} == {
         k: v for k, v in plus.items() if k not in ("appearance", "fusion")}
     meta = torch.load(builtin_weights()[fine["fusion"]["weights"]].file, map_location="cpu", weights_only=True)["meta"]
@@ -365,3 +367,47 @@ def test_motion_support_drops_a_look_alike_that_does_not_move(tmp_path):
     np.testing.assert_allclose(plain.fuse(features, maps), maps, atol=1e-5)
     np.testing.assert_allclose(gated.fuse(features, maps), motion_supported(plain.fuse(features, maps), maps, 0.5),
                                atol=1e-6)
+
+
+def test_motion_fill_gives_back_the_middle_of_a_moving_object(tmp_path):
+    """A fused object with its middle lost, open to the background below (a bear's flank between its legs), while
+    the motion map holds the whole object: ``motion_filled`` raises the lost middle to the motion map inside the
+    region's convex hull, and leaves alone motion foreground outside every hull (spray beside the object), a
+    region without motion support, the pixels the motion map calls background or holds below the fill level, and
+    an object that lost less than ``share`` of its size; the stage applies it last."""
+    from eponet.fusion.support import motion_filled
+
+    fused = np.full((2, 20, 30), 0.05, np.float32)
+    fused[:, 2:12, 2:14] = 0.9
+    fused[:, 5:12, 5:11] = 0.2  # the lost middle, open at the bottom: no hole to fill
+    fused[:, 14:18, 20:26] = 0.8  # a region the motion map does not support
+    motion = np.full_like(fused, 0.02)
+    motion[:, 2:12, 2:14] = 0.85  # the whole object moves
+    motion[:, 6:8, 6:8] = 0.3  # ... but for a patch the motion map calls background
+    motion[:, 2:8, 22:28] = 0.9  # spray, away from the object
+    motion[1] = 0.02  # frame 1: nothing moves, nothing is supported
+    out = motion_filled(fused, motion, support=0.7, fill=0.5)
+    middle = np.zeros(fused.shape[1:], bool)
+    middle[5:12, 5:11] = True
+    middle[6:8, 6:8] = False
+    np.testing.assert_array_equal(out[0][middle], motion[0][middle])
+    untouched = ~middle
+    np.testing.assert_array_equal(out[0][untouched], fused[0][untouched])
+    np.testing.assert_array_equal(out[1], fused[1])
+    strict = motion_filled(fused, motion, support=0.7, fill=0.9)  # the middle's 0.85 is below the fill level
+    np.testing.assert_array_equal(strict, fused)
+    lost = middle.sum() / (fused[0, 2:12, 2:14] > 0.5).sum()  # the lost pixels per pixel of the region: 38 / 78
+    np.testing.assert_array_equal(motion_filled(fused, motion, support=0.7, fill=0.5, share=lost + 0.01), fused)
+    np.testing.assert_array_equal(motion_filled(fused, motion, support=0.7, fill=0.5, share=lost - 0.01), out)
+    none_supported = motion_filled(fused, motion, support=0.95, fill=0.5)  # no region reaches 0.95: nothing is an object
+    np.testing.assert_array_equal(none_supported, fused)
+    with pytest.raises(ValueError, match="must both be"):
+        motion_filled(fused, motion[:, :6], support=0.5, fill=0.5)
+
+    _save_weights(tmp_path / "fusion.pt", _model(motion_residual=True))  # fresh: fuses to the motion map itself
+    features = np.zeros((2, 6, 10, 15), np.float32)
+    plain = ConvGRUStage(weights=str(tmp_path / "fusion.pt"), window=None, device="cpu", motion_support=0.7)
+    filled = ConvGRUStage(weights=str(tmp_path / "fusion.pt"), window=None, device="cpu", motion_support=0.7,
+                          motion_fill=0.5)
+    fused_plain = plain.fuse(features, motion)
+    np.testing.assert_allclose(filled.fuse(features, motion), motion_filled(fused_plain, motion, 0.7, 0.5), atol=1e-6)
