@@ -23,6 +23,23 @@ from scipy import ndimage
 __all__ = ["motion_supported", "motion_filled"]
 
 
+def _regions(probability: np.ndarray, motion: np.ndarray, support: float, level: float):
+    """For each frame ``t`` with a region: ``(t, labels, supported)``, ``labels`` int ``(H, W)`` the 8-connected
+    components of ``probability[t] > level`` (0 below it) and ``supported`` bool ``(count + 1,)`` whether region
+    ``k`` holds a pixel with ``motion >= support`` (``supported[0]`` False). Each frame is labelled as it is when
+    the caller takes it, so a caller may change the frames before."""
+    if probability.shape != motion.shape or probability.ndim != 3:
+        raise ValueError(f"probability and motion must both be (F, H, W), got {probability.shape} and {motion.shape}")
+    structure = np.ones((3, 3), bool)
+    for t in range(len(probability)):
+        labels, count = ndimage.label(probability[t] > level, structure=structure)
+        if count:
+            supported = np.zeros(count + 1, bool)
+            supported[labels[motion[t] >= support]] = True  # the regions with a pixel of clear motion
+            supported[0] = False
+            yield t, labels, supported
+
+
 def motion_supported(probability: np.ndarray, motion: np.ndarray, support: float, level: float = 0.5) -> np.ndarray:
     """The fused ``probability`` with the regions that lack motion support lowered to the ``motion`` map.
 
@@ -51,18 +68,11 @@ def motion_supported(probability: np.ndarray, motion: np.ndarray, support: float
     >>> bool((motion_supported(p, np.zeros_like(p), support=0.5) == p).all())  # no region supported: unchanged
     True
     """
-    if probability.shape != motion.shape or probability.ndim != 3:
-        raise ValueError(f"probability and motion must both be (F, H, W), got {probability.shape} and {motion.shape}")
     out = np.array(probability, np.float32, copy=True)
-    structure = np.ones((3, 3), bool)
-    for t in range(len(out)):
-        labels, count = ndimage.label(out[t] > level, structure=structure)
-        if count == 0:
+    for t, labels, supported in _regions(out, motion, support, level):
+        if not supported.any():
             continue
-        keep = np.zeros(count + 1, bool)
-        keep[labels[motion[t] >= support]] = True  # the regions with a pixel of clear motion
-        if not keep[1:].any():
-            continue
+        keep = supported.copy()
         keep[0] = True  # (label 0, below the level, is never lowered)
         lowered = ~keep[labels]
         out[t][lowered] = np.minimum(out[t][lowered], motion[t][lowered])
@@ -75,19 +85,13 @@ def motion_filled(probability: np.ndarray, motion: np.ndarray, support: float, f
 
     Parameters
     ----------
-    probability : float array (F, H, W)
-        The fused foreground probability, in [0, 1].
-    motion : float array (F, H, W)
-        The motion net's foreground probability on the same grid.
-    support : float
-        A region is an object when its largest motion probability reaches this.
+    probability, motion, support, level
+        As :func:`motion_supported`: a supported region is an object.
     fill : float
         Inside an object's convex hull, a pixel whose motion probability reaches this is given back ...
     share : float
         ... when there are at least this many such pixels at or below ``level`` per pixel of the region (a lost
         part of the object, not the motion map's blur along its outline).
-    level : float
-        Regions are the 8-connected components of ``probability > level``.
 
     Returns
     -------
@@ -100,17 +104,8 @@ def motion_filled(probability: np.ndarray, motion: np.ndarray, support: float, f
     >>> out[0, 2:6, 2:5].min().item(), out[0, 1:6, 8:11].max().item()  # filled; the far motion stays out
     (0.800000011920929, 0.0)
     """
-    if probability.shape != motion.shape or probability.ndim != 3:
-        raise ValueError(f"probability and motion must both be (F, H, W), got {probability.shape} and {motion.shape}")
     out = np.array(probability, np.float32, copy=True)
-    structure = np.ones((3, 3), bool)
-    for t in range(len(out)):
-        labels, count = ndimage.label(out[t] > level, structure=structure)
-        if count == 0:
-            continue
-        supported = np.zeros(count + 1, bool)
-        supported[labels[motion[t] >= support]] = True
-        supported[0] = False
+    for t, labels, supported in _regions(out, motion, support, level):
         boxes = ndimage.find_objects(labels)
         for region in np.flatnonzero(supported):
             rows, cols = boxes[region - 1]
