@@ -72,9 +72,7 @@ def motion_supported(probability: np.ndarray, motion: np.ndarray, support: float
     for t, labels, supported in _regions(out, motion, support, level):
         if not supported.any():
             continue
-        keep = supported.copy()
-        keep[0] = True  # (label 0, below the level, is never lowered)
-        lowered = ~keep[labels]
+        lowered = (labels > 0) & ~supported[labels]
         out[t][lowered] = np.minimum(out[t][lowered], motion[t][lowered])
     return out
 
@@ -108,12 +106,11 @@ def motion_filled(probability: np.ndarray, motion: np.ndarray, support: float, f
     for t, labels, supported in _regions(out, motion, support, level):
         boxes = ndimage.find_objects(labels)
         for region in np.flatnonzero(supported):
-            rows, cols = boxes[region - 1]
-            inside = labels[rows, cols] == region
+            box = boxes[region - 1]
+            inside, fused, moving = labels[box] == region, out[t][box], motion[t][box]  # views of the region's box
             hull = np.zeros(inside.shape, np.uint8)
             cv2.fillConvexPoly(hull, cv2.convexHull(cv2.findNonZero(inside.astype(np.uint8))), 1)
-            lost = (hull > 0) & (motion[t][rows, cols] >= fill) & ~(out[t][rows, cols] > level)
+            lost = (hull > 0) & (moving >= fill) & ~(fused > level)
             if lost.sum() >= share * inside.sum():
-                view = out[t][rows, cols]
-                view[lost] = np.maximum(view[lost], motion[t][rows, cols][lost])
+                fused[lost] = np.maximum(fused[lost], moving[lost])
     return out
