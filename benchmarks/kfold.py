@@ -249,14 +249,16 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             recipe_data: list[dict] | None = None, recipe_phases: list[dict] | None = None,
             fusion_maps: str = "own", appearance: dict | None = None,
             fusion_seeds: tuple[int, ...] = (0,), recipe_dropout: dict | None = None,
-            fusion_model: dict | None = None, fusion_dropout: dict | None = None) -> dict[str, dict]:
+            fusion_model: dict | None = None, fusion_dropout: dict | None = None,
+            recipe_augment: dict | None = None) -> dict[str, dict]:
     """Train one network per fold and seed (``jobs`` at once, one thread each; into ``weights`` or ``out``:
     ``fold<i>/weights.pt`` for the first seed, ``fold<i>/seed<s>/weights.pt`` for the others) and score its
     held-out sequences with the mean of the seeds' networks (the ``epo`` preset's pair: ``seeds=(0, 1)``), with the ``rigidity`` settings merged onto the preset's when given
     (``recipe_rigidity``: merged onto the training recipe's rigidity stage, the ED the network learns, and onto
     the fusion recipe's with ``plus``;
     ``recipe_model``: onto its ``model`` section, e.g. ``flow_centring``; ``recipe_dropout``: onto its
-    ``input_dropout`` section, e.g. ``probability=0`` for ``inputs=ed``). ``plus``: then
+    ``input_dropout`` section, e.g. ``probability=0`` for ``inputs=ed``; ``recipe_augment``: onto its ``augment``
+    section, e.g. ``zoom``). ``plus``: then
     train each fold's EpO+ fusion on that fold's frozen network (into ``out/fold<i>/fusion``) and score the
     ``epo+`` preset with both. ``run``: the spec's ``run`` settings; ``only``: score these sequences only;
     ``crf_settings``: merged onto the refiner (the preset's, or the one ``refiner`` names); ``run_seed``: the held-out
@@ -283,6 +285,7 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
         doc["geometry"]["stages"]["rigidity"].update(recipe_rigidity or {})
         doc["model"].update(recipe_model or {})
         doc["input_dropout"].update(recipe_dropout or {})
+        doc["augment"].update(recipe_augment or {})
         doc["seed"] = seed
         if recipe_data:
             doc["phases"][0]["data"] = [doc["phases"][0]["data"], *fold_sources(recipe_data, i, split[i])]
@@ -407,6 +410,8 @@ def main(argv=None) -> int:
     parser.add_argument("--recipe-dropout", nargs="*", default=[], type=key_value,
                         help="key=value merged onto the training recipe's input_dropout section, e.g. probability=0 "
                         "(with --recipe-model inputs=ed: the ED channel is the only input)")
+    parser.add_argument("--recipe-augment", nargs="*", default=[], type=key_value,
+                        help="key=value merged onto the training recipe's augment section, e.g. 'zoom=[0.7, 1.4]'")
     parser.add_argument("--seeds", default="0",
                         help="epo: comma-separated training seeds; the held-out sequences run the mean of the seeds' "
                         "networks (0,1: a pair, as the epo+ preset runs; the first seed's are fold<i>/weights.pt)")
@@ -497,6 +502,7 @@ def main(argv=None) -> int:
         recipe_rigidity = dict(args.recipe_rigidity)
         recipe_model = dict(args.recipe_model)
         recipe_dropout = dict(args.recipe_dropout)
+        recipe_augment = dict(args.recipe_augment)
         run = dict(args.run)
         seeds = tuple(int(s) for s in args.seeds.split(","))
         fusion_seeds = tuple(int(s) for s in args.fusion_seed.split(","))
@@ -507,7 +513,7 @@ def main(argv=None) -> int:
                                trajectories, seeds, crf, args.seed, flow, motion_net, recipe_model,
                                args.teacher, tuple(int(s) for s in args.teacher_seeds.split(",")), args.teacher_share,
                                recipe_data, recipe_phases, args.fusion_maps, appearance, fusion_seeds, recipe_dropout,
-                               fusion_model, fusion_dropout)
+                               fusion_model, fusion_dropout, recipe_augment)
         measures = ("J", "F", "T")
         meta = {"recipe": "examples/train-epo.yaml", "refiner": args.refiner, "rigidity": rigidity}
         if recipe_rigidity:
@@ -516,6 +522,8 @@ def main(argv=None) -> int:
             meta["recipe_model"] = recipe_model
         if recipe_dropout:
             meta["recipe_dropout"] = recipe_dropout
+        if recipe_augment:
+            meta["recipe_augment"] = recipe_augment
         if recipe_data:
             meta["recipe_data"] = recipe_data
         if recipe_phases:

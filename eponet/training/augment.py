@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from eponet.core.motion import mirror_motion_images
@@ -63,33 +64,57 @@ class InputDropout:
 
 @dataclass(frozen=True)
 class CropFlip:
-    """Where a sample is cut (rows ``y : y + height``, columns ``x : x + width``) and whether it is mirrored."""
+    """Where a sample is cut (rows ``y : y + height``, columns ``x : x + width``) and whether it is mirrored; with
+    ``source`` ``(h, w)``, a zoom: the window cut is ``h x w`` pixels at ``(y, x)``, resized to ``height x
+    width``."""
 
     y: int
     x: int
     height: int
     width: int
     flip: bool
+    source: tuple[int, int] | None = None
 
 
 def draw_crop_flip(shape: tuple[int, int], crop: tuple[int, int] | None, flip: bool,
-                   rng: np.random.Generator) -> CropFlip:
+                   rng: np.random.Generator, zoom: tuple[float, float] | None = None) -> CropFlip:
     """The random crop (of ``crop`` ``(h, w)``, at most ``shape`` ``(H, W)``) and flip of one sample, drawn as
-    :func:`random_crop_flip` draws them."""
+    :func:`random_crop_flip` draws them.
+
+    With ``zoom`` ``(low, high)`` (and a crop) the sample is also magnified by a factor drawn log-uniformly from
+    that range: a window of ``crop / factor`` pixels is cut and resized to ``crop``, so the network sees the
+    scene's objects nearer (> 1) or farther (< 1) than the camera filmed them. The factor is raised where the
+    window would not fit in the frame. Without ``zoom`` the draws are the same as before the option existed."""
     height, width = shape
     y = x = 0
+    source = None
     if crop is not None:
-        height, width = min(crop[0], height), min(crop[1], width)
-        y = int(rng.integers(0, shape[0] - height + 1))
-        x = int(rng.integers(0, shape[1] - width + 1))
-    return CropFlip(y, x, height, width, bool(flip and rng.random() < 0.5))
+        height, width = min(crop[0], shape[0]), min(crop[1], shape[1])
+        window = (height, width)
+        if zoom is not None:
+            factor = float(np.exp(rng.uniform(np.log(zoom[0]), np.log(zoom[1]))))
+            factor = max(factor, height / shape[0], width / shape[1])
+            window = (min(shape[0], round(height / factor)), min(shape[1], round(width / factor)))
+            source = window if window != (height, width) else None
+        y = int(rng.integers(0, shape[0] - window[0] + 1))
+        x = int(rng.integers(0, shape[1] - window[1] + 1))
+    return CropFlip(y, x, height, width, bool(flip and rng.random() < 0.5), source)
 
 
 def apply_crop_flip(images: np.ndarray, masks: np.ndarray, box: CropFlip) -> tuple[np.ndarray, np.ndarray]:
     """Motion images ``(3, H, W)`` and the mask ``(H, W)`` cut to ``box`` and, when it says so, flipped
-    left-right (dx negated)."""
-    images = images[:, box.y : box.y + box.height, box.x : box.x + box.width]
-    masks = masks[box.y : box.y + box.height, box.x : box.x + box.width]
+    left-right (dx negated). A zoomed box's window is resized to the box's size: the images bilinearly, with the
+    flow channels (dx, dy) multiplied by the magnification along their axis (the normalised ED is the video's own
+    scale and stays); the mask by its nearest pixel."""
+    h, w = box.source or (box.height, box.width)
+    images = images[:, box.y : box.y + h, box.x : box.x + w]
+    masks = masks[box.y : box.y + h, box.x : box.x + w]
+    if box.source is not None:
+        size = (box.width, box.height)
+        images = np.stack([cv2.resize(np.ascontiguousarray(c), size, interpolation=cv2.INTER_LINEAR) for c in images])
+        images[0] *= box.width / w
+        images[1] *= box.height / h
+        masks = cv2.resize(np.ascontiguousarray(masks), size, interpolation=cv2.INTER_NEAREST)
     if box.flip:
         images = mirror_motion_images(images)
         masks = masks[:, ::-1]

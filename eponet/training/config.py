@@ -64,6 +64,9 @@ _AUGMENT = (
     Param("flip", "bool", True, "random left-right flips"),
 )
 _MOTION_AUGMENT = _AUGMENT + (
+    Param("zoom", "list", None, "range [low, high] of a random magnification of each cropped sample, drawn "
+          "log-uniformly: a window of crop / factor pixels resized to the crop, its flow scaled with it (null: off; "
+          "needs a crop)", nullable=True),
     Param("flow_shift", "float", 0.0, "std of a random constant added to each sample's (dx, dy), in FLOW_SCALE units "
           "(20 px at 427x240): a camera pan of another speed (0: off)", minimum=0.0),
 )
@@ -325,6 +328,13 @@ def parse_train_config(document: dict, *, base_dir: Path, overridden: set[str] =
     crop = augment.get("crop")
     if crop is not None and not (isinstance(crop, list) and len(crop) == 2 and all(isinstance(c, int) and c >= 16 for c in crop)):
         problems.append(f"augment.crop: expected [height, width] of integers >= 16 or null, got {crop!r}")
+    zoom = augment.get("zoom")
+    if zoom is not None and not (isinstance(zoom, list) and len(zoom) == 2
+                                 and all(isinstance(z, (int, float)) and not isinstance(z, bool) and z > 0 for z in zoom)
+                                 and zoom[0] <= zoom[1]):
+        problems.append(f"augment.zoom: expected [low, high] with 0 < low <= high, or null, got {zoom!r}")
+    elif zoom is not None and crop is None:
+        problems.append("augment.zoom: needs augment.crop (a zoom resizes a window to the crop's size)")
     output = section("output", _OUTPUT)
     cache = section("cache", _CACHE)
     distributed = section("distributed", _DISTRIBUTED)

@@ -106,12 +106,14 @@ class MotionNetTrainer(Trainer):
         [rng] = epoch_rng
         batches = sampler.steps(self.config.optimizer["batch_size"])
         crop = tuple(self.config.augment["crop"]) if self.config.augment["crop"] else None
+        zoom = tuple(self.config.augment["zoom"]) if self.config.augment.get("zoom") else None
         self.net.train()
         losses = []
         for batch in track(batches, desc=f"epoch {epoch + 1}", total=len(batches)):
             # the whole global batch's augmentation, drawn in the order one process draws it
             frames = [index[sampler.sample(p)] for p in batch]
-            boxes = [draw_crop_flip(data[s].masks.shape[1:], crop, self.config.augment["flip"], rng) for s, _ in frames]
+            boxes = [draw_crop_flip(data[s].masks.shape[1:], crop, self.config.augment["flip"], rng, zoom)
+                     for s, _ in frames]
             # sequences of different sizes (without a crop, or smaller than it): the batch's smallest
             h, w = min(b.height for b in boxes), min(b.width for b in boxes)
             chosen, replacement = self.dropout.draw(len(batch), (h, w), epoch, rng)
@@ -189,6 +191,7 @@ def model_card(config: TrainConfig, summary: dict, history: list[dict]) -> str:
                                              if config.loss["name"] != "bce" else ""),
         f"- input-dropout: {d['probability']:.0%} of samples, ED zeroed for {d['zero_epochs']} epochs, then {d['then']}",
         f"- augmentation: crops {a['crop']}, flips {a['flip']}, flow shift std {a.get('flow_shift', 0.0)}"
+        + (f", zoom {a['zoom'][0]}-{a['zoom'][1]}x" if a.get("zoom") else "")
         + (f"; weights exported as an exponential moving average (decay {o['ema']})" if o.get("ema") else ""),
         *([f"- distilled: target (1 - {config.teacher['share']}) x ground truth + {config.teacher['share']} x the mean "
            f"probability of {len(config.teacher['weights'])} teacher network(s): "

@@ -97,6 +97,32 @@ def test_a_network_with_flow_spread_is_trained_exported_and_loaded(tmp_path):
         parse_train_config(document, base_dir=tmp_path)
 
 
+def test_zoom_trains_records_itself_and_is_validated(tmp_path):
+    from eponet.core.errors import SpecError
+    from eponet.training.config import parse_train_config
+
+    data = easy_sequences()
+    config = _config(tmp_path, epochs=6)
+    config.augment["zoom"] = [0.8, 1.25]
+    _trainer(config, data).run()
+    with open(tmp_path / "train" / "history.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert float(rows[-1]["val_j"]) > 0.7  # the zoomed samples keep the masks on the objects
+    assert "zoom 0.8-1.25x" in (tmp_path / "train" / "model-card.md").read_text()
+
+    def problems(augment):
+        document = {"task": "motion_net", "augment": augment, "phases": [{"name": "a", "data": {"davis": {
+            "root": "."}}, "epochs": 1}], "output": {"dir": "out"}}
+        with pytest.raises(SpecError) as error:
+            parse_train_config(document, base_dir=tmp_path)
+        return str(error.value)
+
+    assert "augment.zoom: expected [low, high] with 0 < low <= high, or null, got [1.4, 0.7]" in problems(
+        {"zoom": [1.4, 0.7]})
+    assert "augment.zoom: expected [low, high]" in problems({"zoom": [0, 1]})
+    assert "augment.zoom: needs augment.crop" in problems({"crop": None, "zoom": [0.7, 1.4]})
+
+
 def test_resume_continues_exactly(tmp_path):
     data = easy_sequences(count=2, frames=6)
     straight = _trainer(_config(tmp_path / "a", epochs=3), data)
