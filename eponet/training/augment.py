@@ -111,7 +111,8 @@ def apply_crop_flip(images: np.ndarray, masks: np.ndarray, box: CropFlip) -> tup
     masks = masks[box.y : box.y + h, box.x : box.x + w]
     if box.source is not None:
         size = (box.width, box.height)
-        images = np.stack([cv2.resize(np.ascontiguousarray(c), size, interpolation=cv2.INTER_LINEAR) for c in images])
+        images = np.moveaxis(cv2.resize(np.ascontiguousarray(np.moveaxis(images, 0, -1)), size,
+                                        interpolation=cv2.INTER_LINEAR), -1, 0)
         images[0] *= box.width / w
         images[1] *= box.height / h
         masks = cv2.resize(np.ascontiguousarray(masks), size, interpolation=cv2.INTER_NEAREST)
