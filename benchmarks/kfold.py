@@ -1,7 +1,7 @@
 """Cross-validated accuracy over the 30 DAVIS-2016 train sequences: every sequence is scored by a model that
 never saw it.
 
-Protocol: the 30 sequences of ``ImageSets/train.txt`` are split into 5 folds of 6 (:data:`FOLDS`, fixed; a
+Protocol: the 30 sequences of ``ImageSets/train.txt`` are split into 5 folds of 6 (:func:`folds`, fixed; a
 seeded shuffle, seed 0, of the sorted names). For fold ``i`` the motion network is trained with the shipped
 recipe (``examples/train-epo.yaml``) on the other 24 sequences (``--seeds 0,1``: twice, with seeds 0 and 1, whose
 probabilities are averaged as the preset's pair of networks is), and the fold's 6 sequences are run end to end
@@ -220,6 +220,16 @@ def run_ed(split: list[list[str]], rigidity: dict, flow_cache: Path | None, traj
     return out
 
 
+def listed_sha256(folder: Path) -> dict[Path, str]:
+    """``folder/SHA256SUMS`` (``sha256sum``'s format: digest, then the path relative to ``folder``) as resolved
+    path -> digest; empty when the folder has none (networks trained here)."""
+    sums = folder / "SHA256SUMS"
+    if not sums.is_file():
+        return {}
+    pairs = (line.split(maxsplit=1) for line in sums.read_text().splitlines() if line.strip())
+    return {(folder / name.strip().lstrip("*")).resolve(): digest for digest, name in pairs}
+
+
 def epo_crf() -> dict:
     """The ``epo`` preset's refiner, every parameter spelt out (a spec's refiner merges onto its preset's)."""
     from eponet.core.registry import get_registry
@@ -356,10 +366,17 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     if crf_settings:  # (a spec's refiner merges onto its preset's)
         crf = {"plugin": "densecrf", **(crf or {}), **crf_settings}
     per_sequence = {}
+    sums = listed_sha256(weights)  # kept networks (benchmarks/fold-networks) are checked before they load
     for i in which:
         paths = [str(path) for path in nets(i)]
         stages = {"motion_net": {"plugin": "epo_unet", "weights": paths if len(paths) > 1 else paths[0],
                                  **(motion_net or {})}}
+        if sums:
+            unlisted = [str(path) for path in nets(i) if path.resolve() not in sums]
+            if unlisted:
+                raise SystemExit(f"{unlisted[0]}: not listed in {weights / 'SHA256SUMS'}")
+            digests = [sums[path.resolve()] for path in nets(i)]
+            stages["motion_net"]["sha256"] = digests if len(digests) > 1 else digests[0]
         if rigidity:
             stages["rigidity"] = {"plugin": "trifocal", **rigidity}
         if trajectories:
