@@ -394,8 +394,12 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
             stages["fusion"] = fusion
         if not scored[i]:
             continue
-        manifest = run_validation(stages, out / f"fold{i}" / "heldout", davis, scored[i], save=save, preset=preset,
-                                  evaluate={"dataset": "davis2016", "t": True}, run=run, seed=run_seed)
+        try:
+            manifest = run_validation(stages, out / f"fold{i}" / "heldout", davis, scored[i], save=save,
+                                      preset=preset, evaluate={"dataset": "davis2016", "t": True}, run=run,
+                                      seed=run_seed)
+        except EponetError as exc:  # e.g. a kept network that is not the one SHA256SUMS lists
+            raise SystemExit(f"fold {i}: {exc}") from None
         for name, v in manifest["evaluation"]["sequences"].items():
             per_sequence[name] = {"fold": i, "train_s": round(seconds[i], 1),
                                   **{m: _finite(v.get(m, {}).get("mean")) for m in "JFT"}}
