@@ -368,14 +368,13 @@ def run_epo(split: list[list[str]], out: Path, jobs: int, refiner: str, which: l
     per_sequence = {}
     sums = listed_sha256(weights)  # kept networks (benchmarks/fold-networks) are checked before they load
     for i in which:
-        paths = [str(path) for path in nets(i)]
-        stages = {"motion_net": {"plugin": "epo_unet", "weights": paths if len(paths) > 1 else paths[0],
-                                 **(motion_net or {})}}
+        paths = nets(i)
+        stages = {"motion_net": {"plugin": "epo_unet", "weights": [str(p) for p in paths] if len(paths) > 1
+                                 else str(paths[0]), **(motion_net or {})}}
         if sums:
-            unlisted = [str(path) for path in nets(i) if path.resolve() not in sums]
-            if unlisted:
-                raise SystemExit(f"{unlisted[0]}: not listed in {weights / 'SHA256SUMS'}")
-            digests = [sums[path.resolve()] for path in nets(i)]
+            digests = [sums.get(path.resolve()) for path in paths]
+            if None in digests:
+                raise SystemExit(f"{paths[digests.index(None)]}: not listed in {weights / 'SHA256SUMS'}")
             stages["motion_net"]["sha256"] = digests if len(digests) > 1 else digests[0]
         if rigidity:
             stages["rigidity"] = {"plugin": "trifocal", **rigidity}

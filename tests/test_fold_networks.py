@@ -2,12 +2,12 @@
 ``SHA256SUMS`` names, each network was trained without the sequences of its fold, and each folder holds the
 recipe its README says (the first network of ``epo``'s pair reads the flow's spread, the second the centred flow)."""
 
-import hashlib
 from pathlib import Path
 
 import pytest
 import torch
 
+from eponet.weights import sha256_of
 from tests.benchmarks import load_benchmark
 
 REPO = Path(__file__).resolve().parents[1]
@@ -19,13 +19,18 @@ RECIPES = {"weights.pt": {"flow_spread": 9, "flow_centring": "none"},
 
 
 def listed(folder: Path) -> dict[str, str]:
-    """``SHA256SUMS`` of ``folder`` (``sha256sum``'s format) as relative path -> digest."""
-    lines = (folder / "SHA256SUMS").read_text().splitlines()
-    return {line.split()[1]: line.split()[0] for line in lines if line.strip()}
+    """``SHA256SUMS`` of ``folder`` as relative path -> digest, read as ``kfold.py`` reads it."""
+    sums = load_benchmark("kfold").listed_sha256(folder)
+    return {str(path.relative_to(folder.resolve())): digest for path, digest in sums.items()}
 
 
 def checkpoint(path: Path) -> dict:
     return torch.load(path, map_location="cpu", weights_only=True)
+
+
+def held_out(state: dict) -> list[str]:
+    """The sequences a network's training recipe excluded (its fold)."""
+    return state["meta"]["spec"]["phases"][0]["data"]["davis"]["exclude"]
 
 
 def test_every_network_is_listed_with_its_sha256():
@@ -33,11 +38,11 @@ def test_every_network_is_listed_with_its_sha256():
     on_disk = {str(p.relative_to(PAIR)) for p in PAIR.rglob("*") if p.is_file() and p.suffix in (".pt", ".json")}
     assert set(sums) == on_disk
     for name, digest in sums.items():
-        assert hashlib.sha256((PAIR / name).read_bytes()).hexdigest() == digest, name
+        assert sha256_of(PAIR / name) == digest, name
 
 
 def test_each_fold_network_was_trained_without_its_fold_and_with_its_recipe():
-    held_out = {}
+    folds = {}
     for fold in sorted(PAIR.glob("fold*")):
         i = int(fold.name.removeprefix("fold"))
         for place, options in RECIPES.items():
@@ -47,13 +52,13 @@ def test_each_fold_network_was_trained_without_its_fold_and_with_its_recipe():
             config = state["config"]
             assert {k: config.get(k, 0) for k in options} == options, (fold / place)
             spec = state["meta"]["spec"]
-            excluded = spec["phases"][0]["data"]["davis"]["exclude"]
+            excluded = held_out(state)
             assert len(excluded) == 6 and spec["validation"]["davis"]["sequences"] == excluded
             assert spec["geometry"]["stages"]["rigidity"]["prior_groups"] == 4
             assert spec["seed"] == 0 and len(state["meta"]["history"]) == 8
-            assert held_out.setdefault(i, excluded) == excluded  # both networks of a fold hold out the same six
-    assert held_out, "no fold networks found"
-    names = [n for six in held_out.values() for n in six]
+            assert folds.setdefault(i, excluded) == excluded  # both networks of a fold hold out the same six
+    assert folds, "no fold networks found"
+    names = [n for six in folds.values() for n in six]
     assert len(names) == len(set(names))  # the folds are disjoint
 
 
@@ -65,8 +70,7 @@ def test_the_folds_are_the_kfold_protocols(shared_data):
         i = int(fold.name.removeprefix("fold"))
         for place in RECIPES:
             if (fold / place).is_file():
-                excluded = checkpoint(fold / place)["meta"]["spec"]["phases"][0]["data"]["davis"]["exclude"]
-                assert excluded == split[i], (fold / place)
+                assert held_out(checkpoint(fold / place)) == split[i], (fold / place)
 
 
 @pytest.mark.parametrize("place", sorted(RECIPES))
@@ -88,4 +92,5 @@ def test_kfold_reads_the_sums_it_checks_the_kept_networks_with(tmp_path):
     (tmp_path / "SHA256SUMS").write_text("ab" * 32 + "  fold0/weights.pt\n" + "cd" * 32 + " *fold0/seed1/weights.pt\n")
     assert kfold.listed_sha256(tmp_path) == {(tmp_path / "fold0" / "weights.pt").resolve(): "ab" * 32,
                                              (tmp_path / "fold0" / "seed1" / "weights.pt").resolve(): "cd" * 32}
-    assert kfold.listed_sha256(PAIR) == {(PAIR / name).resolve(): digest for name, digest in listed(PAIR).items()}
+    kept = kfold.listed_sha256(PAIR)
+    assert len(kept) == len((PAIR / "SHA256SUMS").read_text().splitlines()) and all(p.is_file() for p in kept)
